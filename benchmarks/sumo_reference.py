@@ -1,0 +1,273 @@
+"""Outside reference: Eclipse SUMO speed on the same unsignalized grid as ``mivecc``.
+
+Network (``netgenerate``, in a temporary directory): ``rows`` x ``cols`` junctions,
+150 m apart, with 150 m approach/exit links on every side, one lane per direction,
+no U-turns, no traffic lights. Junction type ``right_before_left`` by default (SUMO's
+uncontrolled equal-priority junction: each approach yields to the one on its right, no
+direction is favoured); ``junction_type="priority"`` is the alternative (netconvert then
+ranks the equal-priority approaches so one direction has right of way). Demand: one
+Poisson flow per entry lane (``period="exp(rate)"``, rate = density / 3600 veh/s,
+departSpeed 10 m/s), 2*rows + 2*cols straight routes to the opposite boundary.
+Vehicle: length 2 m, maxSpeed 13 m/s, accel/decel 3 m/s^2, minGap 1 m, Krauss
+``sigma=0``. Simulation: 0.1 s steps, ``--seed``, ``--time-to-teleport -1``
+(teleporting off, so jams stay jams; ``teleports`` in the result should be 0).
+
+Caveat: SUMO's gap acceptance at these junctions saturates early; from roughly
+900 veh/lane/h the grid reaches no steady state (vehicle count and insertion backlog
+keep growing, no permanent deadlock seen). Compare per-vehicle-step speeds there.
+
+Timing: ``warmup_steps`` untimed steps, then ``steps`` calls of
+``libsumo.simulationStep()`` timed with ``time.perf_counter()``. The per-step
+``libsumo.vehicle.getIDCount()`` is inside the timed interval and not subtracted; its
+cost (``count_call_us``, ~1 us) is measured separately. libsumo restarts cleanly in
+one process (``close()`` then ``start()``), so repeated calls run in-process.
+
+Usage: ``python benchmarks/sumo_reference.py --rows 3 --cols 3 --density 900``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import numbers
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+from typing import Any
+
+JUNCTION_TYPES = ("right_before_left", "priority")
+STEP_LENGTH_S = 0.1
+SPACING_M = 150.0
+_INSTALL_HINT = "Eclipse SUMO is not installed; install it with `pip install mivecc[sumo]`."
+
+
+def sumo_available() -> bool:
+    """Tell whether libsumo and the ``netgenerate`` binary can be used.
+
+    Returns:
+        True if ``import libsumo`` works and ``netgenerate`` is found.
+    """
+    try:
+        import libsumo  # noqa: F401
+
+        _netgenerate()
+    except ImportError:
+        return False
+    return True
+
+
+def _netgenerate() -> str:
+    """Locate ``netgenerate`` (eclipse-sumo package, then $SUMO_HOME, then $PATH)."""
+    homes = [os.environ.get("SUMO_HOME", "")]
+    try:
+        import sumo
+
+        homes.insert(0, sumo.SUMO_HOME)
+    except ImportError:
+        pass
+    for home in filter(None, homes):
+        cand = os.path.join(home, "bin", "netgenerate")
+        if os.access(cand, os.X_OK):
+            return cand
+    found = shutil.which("netgenerate")
+    if found is None:
+        raise ImportError(_INSTALL_HINT)
+    return found
+
+
+def _validate(
+    rows: int, cols: int, density: float, steps: int, warmup_steps: int, junction_type: str
+) -> None:
+    """Raise ValueError naming the first out-of-range argument."""
+    for name, val, low in (("rows", rows, 1), ("cols", cols, 1), ("steps", steps, 1),
+                           ("warmup_steps", warmup_steps, 0)):  # fmt: skip
+        if isinstance(val, bool) or not isinstance(val, numbers.Integral) or val < low:
+            raise ValueError(f"{name} must be an integer >= {low}, got {val!r}")
+    if not isinstance(density, numbers.Real) or not math.isfinite(density) or density <= 0:
+        raise ValueError(f"density must be a finite number > 0 (veh/lane/h), got {density!r}")
+    if junction_type not in JUNCTION_TYPES:
+        raise ValueError(f"junction_type must be one of {JUNCTION_TYPES}, got {junction_type!r}")
+
+
+def _build_net(workdir: str, rows: int, cols: int, junction_type: str) -> str:
+    """Run ``netgenerate`` for the grid and return the ``.net.xml`` path."""
+    net = os.path.join(workdir, "grid.net.xml")
+    cmd = [
+        _netgenerate(), "--grid",
+        "--grid.x-number", str(cols), "--grid.y-number", str(rows),
+        "--grid.length", str(SPACING_M), "--grid.attach-length", str(SPACING_M),
+        "--default.lanenumber", "1", "--no-turnarounds",
+        "--default.junctions.type", junction_type, "--tls.guess", "false",
+        "--output-file", net,
+    ]  # fmt: skip
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return net
+
+
+def _through_routes(net: str) -> list[tuple[str, str]]:
+    """Return (entry edge, exit edge) of every straight boundary-to-boundary route."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(net).getroot()
+    fringe: dict[str, tuple[int, int]] = {}
+    inner_x: set[int] = set()
+    for j in root.iter("junction"):
+        xy = (round(float(j.get("x", 0))), round(float(j.get("y", 0))))
+        if j.get("type") == "dead_end":
+            fringe[j.get("id", "")] = xy
+        elif j.get("type") != "internal":
+            inner_x.add(xy[0])
+    entry: dict[str, str] = {}
+    exit_: dict[str, str] = {}
+    for e in root.iter("edge"):
+        if e.get("function") == "internal":
+            continue
+        if e.get("from") in fringe:
+            entry[e.get("from", "")] = e.get("id", "")
+        if e.get("to") in fringe:
+            exit_[e.get("to", "")] = e.get("id", "")
+    routes = []
+    for node, (x, y) in sorted(fringe.items()):
+        horizontal = x not in inner_x  # node sits on the left or right boundary
+        opposite = [
+            n for n, (x2, y2) in fringe.items()
+            if n != node and ((y2 == y and x2 != x) if horizontal else (x2 == x and y2 != y))
+        ]  # fmt: skip
+        if len(opposite) != 1:
+            raise RuntimeError(f"cannot find the exit opposite fringe node {node!r}")
+        routes.append((entry[node], exit_[opposite[0]]))
+    return routes
+
+
+def _write_routes(workdir: str, routes: list[tuple[str, str]], density: float, end_s: float) -> str:
+    """Write one exponential-headway flow per entry lane; return the route-file path."""
+    rate = density / 3600.0  # veh/s per lane
+    lines = [
+        "<routes>",
+        '  <vType id="car" length="2" maxSpeed="13" accel="3" decel="3" minGap="1" sigma="0"/>',
+    ]
+    for i, (src, dst) in enumerate(routes):
+        lines.append(
+            f'  <flow id="f{i}" type="car" from="{src}" to="{dst}" begin="0" end="{end_s:.1f}"'
+            f' period="exp({rate:.10g})" departSpeed="10"/>'
+        )
+    lines.append("</routes>")
+    path = os.path.join(workdir, "grid.rou.xml")
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write("\n".join(lines) + "\n")
+    return path
+
+
+def run_sumo(
+    rows: int,
+    cols: int,
+    density: float,
+    steps: int,
+    seed: int = 0,
+    warmup_steps: int = 600,
+    junction_type: str = "right_before_left",
+) -> dict[str, Any]:
+    """Time SUMO (libsumo) on the straight-through unsignalized grid.
+
+    Args:
+        rows: Number of intersection rows (>= 1).
+        cols: Number of intersection columns (>= 1).
+        density: Poisson arrival rate per entry lane, in vehicles/lane/hour (> 0).
+        steps: Number of timed 0.1 s steps (>= 1).
+        seed: SUMO ``--seed`` for the arrival streams.
+        warmup_steps: Untimed 0.1 s steps run first so that the network fills (>= 0).
+        junction_type: ``"right_before_left"`` (default) or ``"priority"``.
+
+    Returns:
+        Dict with ``steps_per_s`` (timed steps per wall-clock second),
+        ``vehicle_steps_per_s`` (sum of per-step vehicle counts / elapsed s),
+        ``mean_vehicles`` (vehicles in the network per timed step), ``steps``,
+        ``elapsed_s`` (wall-clock s), ``rows``, ``cols``, ``density`` (veh/lane/h),
+        ``sumo_version``, ``junction_type``, plus diagnostics ``seed``,
+        ``warmup_steps``, ``teleports`` (0 expected: teleporting is disabled),
+        ``inserted`` (vehicles inserted so far), ``insertion_backlog`` (vehicles
+        waiting to enter at the end) and ``count_call_us`` (cost of one
+        ``getIDCount`` call, in microseconds, included in ``elapsed_s``).
+
+    Raises:
+        ValueError: If an argument is out of range.
+        ImportError: If SUMO / libsumo is not installed.
+    """
+    _validate(rows, cols, density, steps, warmup_steps, junction_type)
+    try:
+        import libsumo
+    except ImportError as exc:
+        raise ImportError(_INSTALL_HINT) from exc
+
+    end_s = (warmup_steps + steps) * STEP_LENGTH_S + 10.0
+    with tempfile.TemporaryDirectory(prefix="mivecc_sumo_") as workdir:
+        net = _build_net(workdir, rows, cols, junction_type)
+        rou = _write_routes(workdir, _through_routes(net), density, end_s)
+        libsumo.start([
+            "sumo", "-n", net, "-r", rou, "--no-step-log", "--no-warnings",
+            "--step-length", str(STEP_LENGTH_S), "--seed", str(int(seed)),
+            "--time-to-teleport", "-1",
+        ])  # fmt: skip
+        try:
+            step, count = libsumo.simulationStep, libsumo.vehicle.getIDCount
+            for _ in range(warmup_steps):
+                step()
+            total = 0
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                step()
+                total += count()
+            elapsed = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            for _ in range(1000):
+                count()
+            count_us = (time.perf_counter() - t1) * 1e3
+
+            def stat(key: str) -> int:
+                return int(libsumo.simulation.getParameter("", key))
+
+            teleports, inserted = stat("stats.teleports.total"), stat("stats.vehicles.inserted")
+            backlog = libsumo.simulation.getMinExpectedNumber() - libsumo.vehicle.getIDCount()
+            version = libsumo.getVersion()[1]
+        finally:
+            libsumo.close()
+    return {
+        "steps_per_s": steps / elapsed,
+        "vehicle_steps_per_s": total / elapsed,
+        "mean_vehicles": total / steps,
+        "steps": steps,
+        "elapsed_s": elapsed,
+        "rows": rows,
+        "cols": cols,
+        "density": float(density),
+        "sumo_version": version,
+        "junction_type": junction_type,
+        "seed": int(seed),
+        "warmup_steps": warmup_steps,
+        "teleports": teleports,
+        "inserted": inserted,
+        "insertion_backlog": int(backlog),
+        "count_call_us": count_us,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Command-line entry: run one measurement and print it as JSON."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--rows", type=int, default=3, help="intersection rows")
+    p.add_argument("--cols", type=int, default=3, help="intersection columns")
+    p.add_argument("--density", type=float, default=900.0, help="veh/lane/h per entry lane")
+    p.add_argument("--steps", type=int, default=2000, help="timed 0.1 s steps")
+    p.add_argument("--warmup-steps", type=int, default=600, help="untimed 0.1 s steps")
+    p.add_argument("--seed", type=int, default=0, help="SUMO --seed")
+    p.add_argument("--junction-type", choices=JUNCTION_TYPES, default=JUNCTION_TYPES[0])
+    a = p.parse_args(argv)
+    res = run_sumo(a.rows, a.cols, a.density, a.steps, a.seed, a.warmup_steps, a.junction_type)
+    print(json.dumps(res, indent=2))
+
+
+if __name__ == "__main__":
+    main()
