@@ -19,8 +19,9 @@ keep growing, no permanent deadlock seen). Compare per-vehicle-step speeds there
 Timing: ``warmup_steps`` untimed steps, then ``steps`` calls of
 ``libsumo.simulationStep()`` timed with ``time.perf_counter()``. The per-step
 ``libsumo.vehicle.getIDCount()`` is inside the timed interval and not subtracted; its
-cost (``count_call_us``, ~1 us) is measured separately. libsumo restarts cleanly in
-one process (``close()`` then ``start()``), so repeated calls run in-process.
+cost (``count_call_us``) is measured separately: it grows with the vehicle count
+(~1 us at 60 vehicles, ~18 us at 600) but stays near 1 % of a step. libsumo restarts
+cleanly in one process (``close()`` then ``start()``), so repeated calls run in-process.
 
 Usage: ``python benchmarks/sumo_reference.py --rows 3 --cols 3 --density 900``
 """
