@@ -10,8 +10,6 @@ from types import ModuleType
 
 import pytest
 
-pytestmark = pytest.mark.sumo
-
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "sumo_reference.py"
 
 
@@ -53,6 +51,7 @@ def test_bad_args_raise_value_error(kwargs: dict, field: str) -> None:
         sumo_reference.run_sumo(**args)
 
 
+@pytest.mark.sumo
 @needs_sumo
 def test_run_1x1_and_determinism() -> None:
     runs = [
@@ -71,6 +70,7 @@ def test_run_1x1_and_determinism() -> None:
     assert runs[1]["inserted"] == res["inserted"]
 
 
+@pytest.mark.sumo
 @needs_sumo
 def test_seed_changes_arrivals() -> None:
     a = sumo_reference.run_sumo(1, 1, 900.0, steps=50, seed=1, warmup_steps=300)
