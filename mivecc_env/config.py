@@ -1,0 +1,296 @@
+"""One frozen, validated configuration for the MiVeCC simulator and environment.
+
+Every constant of the model (``shared/MODEL.md``) lives here with the paper's value as the
+default. Where the paper is ambiguous, the reading used by this project is the default and the
+alternative reading is one field away (``end_rule``, ``same_lane_rule``, ``edge_sv_gate``,
+``sv_acc_source``). ``docs/model.md`` explains every choice.
+
+Example:
+    >>> cfg = MiVeCCConfig(rows=1, cols=1, density_vplh=2100)
+    >>> cfg.replace(scheme="EE").scheme
+    'EE'
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+Scheme = Literal["E", "EE", "EEC"]
+Control = Literal["unsignalized", "signalized"]
+EndRule = Literal["sensible", "literal"]
+AccSource = Literal["front", "ego"]
+
+
+class ConfigError(ValueError):
+    """A configuration value is unknown or outside its allowed range."""
+
+
+@dataclass(frozen=True)
+class _Range:
+    """Allowed numeric range of a field (inclusive unless stated)."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+    hi_open: bool = False
+    integer: bool = False
+
+    def describe(self) -> str:
+        left = "(" if self.lo_open else "["
+        right = ")" if self.hi_open else "]"
+        kind = "an integer" if self.integer else "a number"
+        return f"{kind} in {left}{self.lo}, {self.hi}{right}"
+
+    def contains(self, value: float) -> bool:
+        if self.lo_open and not value > self.lo:
+            return False
+        if not self.lo_open and not value >= self.lo:
+            return False
+        if self.hi_open and not value < self.hi:
+            return False
+        return self.hi_open or value <= self.hi
+
+
+def _num(default: float, lo: float, hi: float, doc: str, **kw: Any) -> Any:
+    return field(default=default, metadata={"range": _Range(lo, hi, **kw), "doc": doc})
+
+
+def _int(default: int, lo: int, hi: int, doc: str) -> Any:
+    return field(default=default, metadata={"range": _Range(lo, hi, integer=True), "doc": doc})
+
+
+def _choice(default: Any, choices: tuple[Any, ...], doc: str) -> Any:
+    return field(default=default, metadata={"choices": choices, "doc": doc})
+
+
+@dataclass(frozen=True)
+class MiVeCCConfig:
+    """All constants of the MiVeCC model, with the paper's values as defaults.
+
+    Units are in the field names: ``_m`` metres, ``_s`` seconds, ``_mps`` m/s, ``_mps2`` m/s^2,
+    ``_vplh`` vehicles per lane per hour. Construct with keywords; an unknown keyword or a value
+    out of range raises :class:`ConfigError` naming the field and its allowed range.
+    """
+
+    # --- road network -------------------------------------------------------------------
+    rows: int = _int(3, 1, 16, "rows of intersections in the grid")
+    cols: int = _int(3, 1, 16, "columns of intersections in the grid")
+    segment_length_m: float = _num(
+        150.0, 40.0, 2000.0, "length of every segment: approach, between intersections, exit"
+    )
+    lane_offset_m: float = _num(
+        5.0, 1.0, 10.0, "distance of a lane's centreline from its road's centreline "
+        "(released code: 5 m); conflict points sit this far from the centre on each axis"
+    )
+
+    # --- vehicles -----------------------------------------------------------------------
+    vehicle_length_m: float = _num(
+        2.0, 0.5, 10.0, "vehicle size; two vehicles closer than this collide"
+    )
+    v_min_mps: float = _num(6.0, 0.0, 30.0, "minimum velocity (unsignalized control)")
+    v_max_mps: float = _num(13.0, 1.0, 40.0, "maximum velocity")
+    v_init_mps: float = _num(10.0, 0.0, 40.0, "velocity at network entry")
+    a_max_mps2: float = _num(3.0, 0.1, 10.0, "acceleration bound: a in [-a_max, a_max]")
+    dt_s: float = _num(0.1, 0.01, 1.0, "simulation time step T")
+
+    # --- demand -------------------------------------------------------------------------
+    density_vplh: float = _num(
+        900.0, 1.0, 3600.0, "Poisson arrival rate per entry lane (before the headway floor)"
+    )
+    min_headway_s: float = _num(
+        1.0, 0.0, 10.0, "floor on the gap between consecutive arrivals of one entry lane"
+    )
+    entry_clearance_m: float = _num(
+        10.0, 2.0, 100.0, "a queued vehicle enters only when the last vehicle of its lane is "
+        "at least this far from the lane start"
+    )
+
+    # --- safety value (eqs. safe_value) -------------------------------------------------
+    sv_alpha_d: float = _num(10.0, 0.0, 1000.0, "alpha_d [m]", lo_open=True)
+    sv_beta_d: float = _num(10.0, 0.0, 100.0, "beta_d", lo_open=True)
+    sv_alpha_t: float = _num(1.5, 0.0, 100.0, "alpha_t", lo_open=True)
+    sv_beta_t: float = _num(2.0, 0.0, 10.0, "beta_t", lo_open=True)
+    sv_alpha_acc: float = _num(1.5, 0.0, 100.0, "alpha_acc", lo_open=True)
+    sv_beta_acc: float = _num(12.0, 0.0, 100.0, "beta_acc", lo_open=True)
+    sv_lambda_acc: float = _num(0.2, 0.0, 10.0, "lambda_acc")
+    sv_d_threshold_m: float = _num(
+        10.0, 0.0, 1000.0, "d_threshold of SV_acc (not in the paper; released code: 10 m)",
+        lo_open=True,
+    )
+    sv_min: float = _num(-20.0, -1000.0, 0.0, "lower clip of the safety value", hi_open=True)
+    sv_max: float = _num(20.0, 0.0, 1000.0, "upper clip of the safety value", lo_open=True)
+    sv_acc_source: AccSource = _choice(
+        "front", ("front", "ego"),
+        "whose acceleration SV_acc uses: the front vehicle's (paper) or the ego's (released code)",
+    )
+
+    # --- virtual lanes, selection, density indicator ------------------------------------
+    projection_window_m: float = _num(
+        75.0, 0.0, 1000.0, "a crossing vehicle is projected onto a lane while its signed "
+        "distance to the shared conflict point is within +- this window", lo_open=True,
+    )
+    control_radius_m: float = _num(
+        75.0, 0.0, 1000.0, "edge control area: vehicles within this distance (along their "
+        "lane) of an intersection centre", lo_open=True,
+    )
+    k_edge: int = _int(15, 2, 256, "state-graph size K of an edge node")
+    k_cloud: int = _int(60, 2, 512, "state-graph size K of the cloud node")
+    di_n: int = _int(5, 1, 100, "n of the density indicator (n-th vehicle ahead / behind)")
+
+    # --- end node (Algorithm 3) ---------------------------------------------------------
+    eta: float = _num(3.0, 0.0, 100.0, "conversion factor: a_end = SV / eta", lo_open=True)
+    omega: float = _num(0.2, 0.0, 1.0, "fusion weight of the cloud action")
+    end_rule: EndRule = _choice(
+        "sensible", ("sensible", "literal"),
+        "sensible: nearest ahead -> SV/eta, nearest behind -> |SV/eta|; literal: as printed",
+    )
+    same_lane_rule: bool = _choice(
+        False, (False, True), "the released code's extra same-lane rule ('priori knowledge')"
+    )
+    same_lane_rule_horizon_m: float = _num(
+        50.0, 0.0, 1000.0, "the same-lane rule applies this far or more before the next "
+        "conflict point (released code: 50 m)"
+    )
+    edge_sv_gate: float | None = field(
+        default=None,
+        metadata={
+            "range": _Range(-1000.0, 1000.0),
+            "optional": True,
+            "doc": "fuse the edge action only when the vehicle's SV exceeds this (released "
+            "code: -2); None fuses always (paper)",
+        },
+    )
+
+    # --- scheme and control -------------------------------------------------------------
+    scheme: Scheme = _choice(
+        "E", ("E", "EE", "EEC"),
+        "E: end rules only; EE: rules + edge actions; EEC: rules + edge + cloud actions",
+    )
+    control: Control = _choice(
+        "unsignalized", ("unsignalized", "signalized"),
+        "signalized: fixed-time signal heads and IDM car-following, v in [0, v_max]",
+    )
+    signal_green_s: float = _num(30.0, 1.0, 600.0, "green time of each phase (signalized)")
+    signal_yellow_s: float = _num(3.0, 0.0, 60.0, "yellow time of each phase (signalized)")
+    signal_all_red_s: float = _num(2.0, 0.0, 60.0, "all-red clearance time (signalized)")
+    signal_offset_s: float = _num(
+        0.0, 0.0, 600.0, "start offset added per intersection column and row (green wave)"
+    )
+    idm_time_headway_s: float = _num(1.0, 0.1, 10.0, "IDM desired time headway")
+    idm_min_gap_m: float = _num(2.0, 0.0, 50.0, "IDM jam distance (bumper to bumper)")
+    idm_comfort_decel_mps2: float = _num(2.0, 0.1, 10.0, "IDM comfortable deceleration b")
+    idm_delta: float = _num(4.0, 1.0, 10.0, "IDM acceleration exponent")
+
+    # --- episode and reward -------------------------------------------------------------
+    max_steps: int = _int(3000, 1, 10_000_000, "truncation: steps per episode")
+    reward_v_ref_mps: float = _num(
+        12.0, 0.0, 40.0, "velocity reference of the reward: term mean(v - v_ref)"
+    )
+    reward_sv_weight: float = _num(
+        0.05, 0.0, 100.0, "weight of the edge reward's mean-SV term"
+    )
+    collision_penalty: float = _num(
+        10.0, 0.0, 1e6, "reward penalty per vehicle removed by collision in a node's scope"
+    )
+
+    # ------------------------------------------------------------------------------------
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            _check_field(f, getattr(self, f.name))
+        self._check_relations()
+
+    def _check_relations(self) -> None:
+        def need(ok: bool, name: str, message: str) -> None:
+            if not ok:
+                raise ConfigError(f"{name}: {message}")
+
+        need(self.v_min_mps < self.v_max_mps, "v_min_mps",
+             f"must be below v_max_mps={self.v_max_mps}, got {self.v_min_mps}")
+        lo = 0.0 if self.control == "signalized" else self.v_min_mps
+        need(lo <= self.v_init_mps <= self.v_max_mps, "v_init_mps",
+             f"must be in [{lo}, {self.v_max_mps}], got {self.v_init_mps}")
+        need(self.sv_min < self.sv_max, "sv_min", "must be below sv_max")
+        half = self.segment_length_m / 2
+        need(self.control_radius_m <= half, "control_radius_m",
+             f"must be in (0, {half}] (half a segment) so control areas do not overlap, "
+             f"got {self.control_radius_m}")
+        lim = self.segment_length_m - self.lane_offset_m
+        need(self.projection_window_m < lim, "projection_window_m",
+             f"must be in (0, {lim}) (segment_length_m - lane_offset_m), "
+             f"got {self.projection_window_m}")
+        need(2 * self.lane_offset_m < half, "lane_offset_m",
+             f"must be below segment_length_m / 4 = {half / 2}, got {self.lane_offset_m}")
+
+    # ------------------------------------------------------------------------------------
+    @property
+    def a_min_mps2(self) -> float:
+        """Lower acceleration bound [m/s^2] (the paper's range is symmetric)."""
+        return -self.a_max_mps2
+
+    @property
+    def velocity_floor_mps(self) -> float:
+        """Velocity floor actually applied [m/s]: 0 under signals, else ``v_min_mps``."""
+        return 0.0 if self.control == "signalized" else self.v_min_mps
+
+    @property
+    def n_intersections(self) -> int:
+        return self.rows * self.cols
+
+    def replace(self, **overrides: Any) -> MiVeCCConfig:
+        """A copy with some fields changed (validated like the constructor)."""
+        return from_overrides(self, **overrides)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def _check_field(f: dataclasses.Field, value: Any) -> None:
+    meta = f.metadata
+    if "choices" in meta:
+        if value not in meta["choices"] or type(value) is not type(meta["choices"][0]):
+            raise ConfigError(f"{f.name}: must be one of {list(meta['choices'])}, got {value!r}")
+        return
+    rng: _Range = meta["range"]
+    if value is None and meta.get("optional"):
+        return
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{f.name}: must be {rng.describe()}, got {value!r}")
+    if rng.integer and not isinstance(value, int):
+        if not (isinstance(value, float) and value.is_integer()):
+            raise ConfigError(f"{f.name}: must be {rng.describe()}, got {value!r}")
+    if not math.isfinite(value) or not rng.contains(value):
+        raise ConfigError(f"{f.name}: must be {rng.describe()}, got {value!r}")
+
+
+FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MiVeCCConfig))
+
+#: Short keyword aliases accepted by :func:`from_overrides` (``density`` is in veh/lane/h).
+ALIASES: dict[str, str] = {"density": "density_vplh"}
+
+
+def from_overrides(base: MiVeCCConfig | None = None, **overrides: Any) -> MiVeCCConfig:
+    """Build a config from keyword overrides, rejecting unknown keys with a suggestion."""
+    base = base or MiVeCCConfig()
+    fixed: dict[str, Any] = {}
+    for key, value in overrides.items():
+        name = ALIASES.get(key, key)
+        if name not in FIELD_NAMES:
+            close = difflib.get_close_matches(key, [*FIELD_NAMES, *ALIASES], n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ConfigError(f"{key}: unknown configuration field{hint}")
+        fields_by_name = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}
+        f = fields_by_name[name]
+        if f.metadata.get("range") is not None and f.metadata["range"].integer:
+            if isinstance(value, float) and value.is_integer():
+                value = int(value)
+        fixed[name] = value
+    return dataclasses.replace(base, **fixed)
+
+
+def describe_fields() -> list[tuple[str, Any, str]]:
+    """(name, default, description) of every field, for documentation and the CLI."""
+    return [(f.name, f.default, f.metadata.get("doc", "")) for f in dataclasses.fields(MiVeCCConfig)]

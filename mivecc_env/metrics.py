@@ -1,0 +1,80 @@
+"""Traffic-efficiency metrics of a simulation: per-episode summaries and the upper bound.
+
+* average travel velocity: per exited vehicle, path length over trip time, the trip counted
+  from its arrival at the entry queue (``avg_travel_velocity_mps``) or from its entry into the
+  network (``avg_travel_velocity_no_wait_mps``), averaged over the exited vehicles;
+* its theoretical upper bound: enter at ``v_init``, accelerate at ``a_max`` to ``v_max``,
+  cruise to the exit (no waiting);
+* mean speed in the network (over all vehicle-steps), throughput (exited vehicles, and per
+  hour), collisions (events and vehicles removed), entry backlog (queued vehicles), mean trip
+  and waiting times, and the accounting terms.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from mivecc_env.config import MiVeCCConfig
+
+if TYPE_CHECKING:
+    from mivecc_env.sim.core import Simulator
+
+#: Keys of :func:`episode_summary`, in a fixed order (all values are floats).
+SUMMARY_KEYS: tuple[str, ...] = (
+    "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
+    "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
+    "backlog", "in_network", "arrived", "mean_trip_time_s", "mean_wait_time_s", "sim_time_s",
+)
+
+
+def min_travel_time_s(config: MiVeCCConfig, path_length_m: float | np.ndarray) -> np.ndarray:
+    """Shortest possible trip [s]: from ``v_init`` accelerate at ``a_max`` to ``v_max``, cruise."""
+    v0, v1, a = config.v_init_mps, config.v_max_mps, config.a_max_mps2
+    length = np.asarray(path_length_m, dtype=np.float64)
+    t_acc = (v1 - v0) / a
+    d_acc = (v1 * v1 - v0 * v0) / (2.0 * a)
+    # A path shorter than the acceleration distance never reaches v_max.
+    short = length < d_acc
+    t_short = (-v0 + np.sqrt(v0 * v0 + 2.0 * a * np.minimum(length, d_acc))) / a
+    return np.where(short, t_short, t_acc + (length - d_acc) / v1)
+
+
+def upper_bound_velocity_mps(config: MiVeCCConfig) -> float:
+    """Theoretical upper bound of the average travel velocity [m/s].
+
+    Every entry lane has the same demand, so the bound is the mean over through lanes of
+    ``path_length / min_travel_time``.
+    """
+    seg = config.segment_length_m
+    lengths = np.array([(config.cols + 1) * seg] * (2 * config.rows)
+                       + [(config.rows + 1) * seg] * (2 * config.cols))
+    return float(np.mean(lengths / min_travel_time_s(config, lengths)))
+
+
+def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
+    """Metrics of environment ``env`` of a simulator since its last reset."""
+    exited = int(sim.exited[env])
+    n = max(exited, 1)
+    sim_time = sim.time_s
+    return {
+        "avg_travel_velocity_mps": float(sim.sum_travel_velocity[env] / n) if exited else 0.0,
+        "avg_travel_velocity_no_wait_mps": (
+            float(sim.sum_travel_velocity_no_wait[env] / n) if exited else 0.0
+        ),
+        "upper_bound_mps": upper_bound_velocity_mps(sim.config),
+        "mean_speed_mps": float(
+            sim.sum_speed_samples[env] / max(int(sim.vehicle_steps[env]), 1)
+        ),
+        "throughput": float(exited),
+        "throughput_vph": float(exited * 3600.0 / sim_time) if sim_time > 0 else 0.0,
+        "collisions": float(sim.collision_events[env]),
+        "collided_vehicles": float(sim.collided[env]),
+        "backlog": float(sim.queued[env]),
+        "in_network": float(sim.in_network[env]),
+        "arrived": float(sim.arrived[env]),
+        "mean_trip_time_s": float(sim.sum_trip_time[env] / n) if exited else 0.0,
+        "mean_wait_time_s": float(sim.sum_wait_time[env] / n) if exited else 0.0,
+        "sim_time_s": float(sim_time),
+    }

@@ -1,0 +1,400 @@
+"""The batched traffic simulator: vehicle arrays, one step of the whole network.
+
+State is held as arrays with a leading batch axis of B independent environments and a slot
+axis (``(B, capacity)``); a slot is free when ``active`` is False. One :meth:`Simulator.step`
+
+1. takes the virtual-lane view of the current state (built at the end of the previous step),
+2. computes every vehicle's safety value and on-board action, fuses the coordinators' actions
+   (unsignalized) or applies car-following and signals (signalized),
+3. moves every vehicle by eq. (1) within the velocity bounds,
+4. removes the vehicles that left the network, recording their trips,
+5. detects collisions (closer than the vehicle size, own lane or crossing lanes), counts them
+   and removes the vehicles involved,
+6. moves arrivals into the entry queues and lets queued vehicles enter where the lane is clear,
+7. builds the new virtual-lane view.
+
+Accounting invariant, per environment, after every step:
+``arrived == queued + in_network + exited + collided``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import end_node, signals
+from mivecc_env.sim.arrivals import ArrivalProcess
+from mivecc_env.sim.network import GridNetwork
+from mivecc_env.sim.safety import safety_value, time_to_collision
+from mivecc_env.sim.virtual_lane import VirtualLaneView, build_view
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass
+class VehicleSafety:
+    """Per-vehicle quantities of the current view (arrays of length n, view order)."""
+
+    sv: FloatArray  # safety value
+    d_front: FloatArray  # distance to the nearest point ahead on the virtual lane [m]
+    d_back: FloatArray  # ... behind [m]
+    ttc: FloatArray  # time to collision with the nearest point [s]
+
+
+@dataclass
+class StepEvents:
+    """What happened in the last step, per environment (arrays of shape (B,))."""
+
+    exited: IntArray
+    collided_vehicles: IntArray
+    collision_events: IntArray
+    entered: IntArray
+    #: (k,) environment and intersection (control area, -1 outside) of each collided vehicle.
+    collided_env: IntArray
+    collided_area: IntArray
+
+
+class Simulator:
+    """B independent copies of the MiVeCC road network, stepped together.
+
+    Args:
+        config: the model constants.
+        batch_size: number of independent environments B.
+        seed: one seed for all (each environment ``b`` gets ``SeedSequence(seed).spawn``'s
+            ``b``-th child) or one seed per environment.
+        capacity: initial vehicle slots per environment (grows on demand).
+    """
+
+    def __init__(
+        self,
+        config: MiVeCCConfig,
+        batch_size: int = 1,
+        seed: int | Sequence[int] | None = None,
+        capacity: int = 256,
+    ) -> None:
+        if not isinstance(batch_size, int) or batch_size < 1:
+            raise ValueError(f"batch_size: must be an integer >= 1, got {batch_size!r}")
+        self.config = config
+        self.network = GridNetwork.from_config(config)
+        self.batch_size = batch_size
+        self._initial_capacity = max(8, int(capacity))
+        self.arrivals = ArrivalProcess(
+            batch_size, self.network.n_lanes, config.density_vplh, config.min_headway_s
+        )
+        self.reset(seed)
+
+    # ------------------------------------------------------------------------------------
+    # state
+    def reset(self, seed: int | Sequence[int] | None = None) -> None:
+        """Empty network, fresh arrival streams, time 0."""
+        self.arrivals.reset(self._seed_sequences(seed))
+        shape = (self.batch_size, self._initial_capacity)
+        self.active = np.zeros(shape, dtype=bool)
+        self.lane = np.zeros(shape, dtype=np.int64)
+        self.s = np.zeros(shape)  # distance from the lane entry [m]
+        self.v = np.zeros(shape)  # velocity [m/s]
+        self.a = np.zeros(shape)  # acceleration applied in the last step [m/s^2]
+        self.t_arrive = np.zeros(shape)  # arrival at the entry queue [s]
+        self.t_enter = np.zeros(shape)  # entry into the network [s]
+        self.vid = np.full(shape, -1, dtype=np.int64)  # unique id per environment
+        b = self.batch_size
+        self.step_count = 0
+        self.next_vid = np.zeros(b, dtype=np.int64)
+        self.exited = np.zeros(b, dtype=np.int64)
+        self.collided = np.zeros(b, dtype=np.int64)  # vehicles removed by collision
+        self.collision_events = np.zeros(b, dtype=np.int64)
+        # trip statistics of exited vehicles
+        self.sum_travel_velocity = np.zeros(b)  # path / (exit - arrival) [m/s]
+        self.sum_travel_velocity_no_wait = np.zeros(b)  # path / (exit - entry) [m/s]
+        self.sum_trip_time = np.zeros(b)  # exit - arrival [s]
+        self.sum_wait_time = np.zeros(b)  # entry - arrival [s]
+        self.sum_speed_samples = np.zeros(b)  # sum over steps of the vehicles' speeds [m/s]
+        self.vehicle_steps = np.zeros(b, dtype=np.int64)
+        self.last_events = self._no_events()
+        self._refresh_view()
+
+    def _seed_sequences(self, seed: int | Sequence[int] | None) -> list[np.random.SeedSequence]:
+        if seed is None or isinstance(seed, int | np.integer):
+            root = np.random.SeedSequence(None if seed is None else int(seed))
+            return root.spawn(self.batch_size) if self.batch_size > 1 else [root]
+        seeds = list(seed)
+        if len(seeds) != self.batch_size:
+            raise ValueError(f"seed: need one seed per environment ({self.batch_size}), "
+                             f"got {len(seeds)}")
+        return [np.random.SeedSequence(int(x)) for x in seeds]
+
+    def _no_events(self) -> StepEvents:
+        zero = np.zeros(self.batch_size, dtype=np.int64)
+        empty = np.zeros(0, dtype=np.int64)
+        return StepEvents(zero, zero.copy(), zero.copy(), zero.copy(), empty, empty.copy())
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time [s]."""
+        return self.step_count * self.config.dt_s
+
+    @property
+    def capacity(self) -> int:
+        return int(self.active.shape[1])
+
+    @property
+    def in_network(self) -> IntArray:
+        """(B,) vehicles in the network."""
+        return self.active.sum(axis=1)
+
+    @property
+    def queued(self) -> IntArray:
+        """(B,) vehicles waiting at the entries."""
+        return self.arrivals.queued.sum(axis=1)
+
+    @property
+    def arrived(self) -> IntArray:
+        """(B,) vehicles that have arrived at an entry so far."""
+        return self.arrivals.arrived.sum(axis=1)
+
+    @property
+    def view(self) -> VirtualLaneView:
+        """Virtual-lane view of the current state."""
+        return self._view
+
+    @property
+    def safety(self) -> VehicleSafety:
+        """Safety values of the current state (view order)."""
+        return self._safety
+
+    def _refresh_view(self) -> None:
+        self._view = build_view(
+            self.network, self.config.projection_window_m, self.active, self.lane, self.s
+        )
+        self._safety = self._compute_safety(self._view)
+
+    def _compute_safety(self, view: VirtualLaneView) -> VehicleSafety:
+        c = self.config
+        v = self.v.ravel()[view.vehicle]
+        a = self.a.ravel()[view.vehicle]
+        pv = view.point_vehicle
+        has_f, has_b = view.front_point >= 0, view.back_point >= 0
+        fi = pv[np.maximum(view.front_point, 0)]
+        bi = pv[np.maximum(view.back_point, 0)]
+        v_front = np.where(has_f, v[fi], 0.0)
+        v_back = np.where(has_b, v[bi], 0.0)
+        ahead = view.d_front <= view.d_back
+        d_nearest = np.minimum(view.d_front, view.d_back)
+        closing = np.where(ahead, v - v_front, v_back - v)
+        ttc = np.where(np.isfinite(d_nearest), time_to_collision(d_nearest, closing), np.inf)
+        acc = a if c.sv_acc_source == "ego" else np.where(has_f, a[fi], 0.0)
+        sv = safety_value(d_nearest, ttc, view.d_front, acc, c)
+        return VehicleSafety(sv=sv, d_front=view.d_front, d_back=view.d_back, ttc=ttc)
+
+    # ------------------------------------------------------------------------------------
+    # stepping
+    def step(
+        self,
+        edge_accel: FloatArray | None = None,
+        cloud_accel: FloatArray | None = None,
+    ) -> StepEvents:
+        """Advance every environment by one time step.
+
+        Args:
+            edge_accel: (B, capacity) edge action per vehicle slot [m/s^2], NaN where none.
+            cloud_accel: (B, capacity) cloud action per vehicle slot [m/s^2], NaN where none.
+                Both are ignored under signalized control.
+        """
+        c, view = self.config, self._view
+        flat = view.vehicle
+        s, v = self.s.ravel()[flat], self.v.ravel()[flat]
+        lane = view.lane
+        if c.control == "signalized":
+            accel = signals.signalized_accel(self, view, s, v)
+        else:
+            accel = self._unsignalized_accel(view, s, v, edge_accel, cloud_accel)
+        s_new, v_new, a_applied = end_node.bounded_motion(
+            s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
+        )
+        t0 = self.time_s
+        t1 = t0 + c.dt_s
+        self.s.ravel()[flat] = s_new
+        self.v.ravel()[flat] = v_new
+        self.a.ravel()[flat] = a_applied
+        self.sum_speed_samples += np.bincount(view.env, v_new, minlength=self.batch_size)
+        self.vehicle_steps += np.bincount(view.env, minlength=self.batch_size)
+
+        events = self._no_events()
+        length = self.network.lane_length[lane]
+        out = s_new >= length
+        if out.any():
+            self._record_exits(view, out, s, s_new, length, t0, t1, events)
+        self._remove_collisions(view, s_new, out, events)
+
+        self.step_count += 1
+        self._enter_vehicles(t1, events)
+        self.last_events = events
+        self._refresh_view()
+        return events
+
+    def _unsignalized_accel(
+        self, view: VirtualLaneView, s: FloatArray, v: FloatArray,
+        edge_accel: FloatArray | None, cloud_accel: FloatArray | None,
+    ) -> FloatArray:
+        c, safety = self.config, self._safety
+        a_end = end_node.end_accel(safety.sv, safety.d_front, safety.d_back, c)
+        if c.same_lane_rule:
+            leader_gap = np.where(view.leader >= 0, s[view.leader] - s, np.inf)
+            follower_gap = np.where(view.follower >= 0, s - s[view.follower], np.inf)
+            cps = self.network.lane_cp_s[view.lane]
+            to_cp = np.where(cps >= s[:, None], cps - s[:, None], np.inf).min(axis=1)
+            a_end = end_node.apply_same_lane_rule(
+                a_end, leader_gap, follower_gap, to_cp, view.d_front, c
+            )
+        edge = None if edge_accel is None or c.scheme == "E" else edge_accel.ravel()[view.vehicle]
+        cloud = (None if cloud_accel is None or c.scheme != "EEC"
+                 else cloud_accel.ravel()[view.vehicle])
+        return end_node.fuse(a_end, safety.sv, edge, cloud, c)
+
+    def _record_exits(
+        self, view: VirtualLaneView, out: NDArray[np.bool_], s_old: FloatArray,
+        s_new: FloatArray, length: FloatArray, t0: float, t1: float, events: StepEvents,
+    ) -> None:
+        idx = np.flatnonzero(out)
+        flat = view.vehicle[idx]
+        env = view.env[idx]
+        # Exit time interpolated within the step.
+        frac = (length[idx] - s_old[idx]) / np.maximum(s_new[idx] - s_old[idx], 1e-12)
+        t_exit = t0 + np.clip(frac, 0.0, 1.0) * (t1 - t0)
+        t_arr, t_ent = self.t_arrive.ravel()[flat], self.t_enter.ravel()[flat]
+        trip, trip_no_wait = t_exit - t_arr, t_exit - t_ent
+        b = self.batch_size
+        self.sum_travel_velocity += np.bincount(env, length[idx] / trip, minlength=b)
+        self.sum_travel_velocity_no_wait += np.bincount(
+            env, length[idx] / trip_no_wait, minlength=b
+        )
+        self.sum_trip_time += np.bincount(env, trip, minlength=b)
+        self.sum_wait_time += np.bincount(env, t_ent - t_arr, minlength=b)
+        n_out = np.bincount(env, minlength=b)
+        self.exited += n_out
+        events.exited = n_out
+        self.active.ravel()[flat] = False
+
+    def _remove_collisions(
+        self, view: VirtualLaneView, s_new: FloatArray, out: NDArray[np.bool_],
+        events: StepEvents,
+    ) -> None:
+        pairs = collision_pairs(self.network, view, s_new, out, self.config.vehicle_length_m)
+        if pairs.size == 0:
+            return
+        b = self.batch_size
+        env_of_pair = view.env[pairs[:, 0]]
+        events.collision_events = np.bincount(env_of_pair, minlength=b)
+        self.collision_events += events.collision_events
+        hit = np.unique(pairs.ravel())
+        env = view.env[hit]
+        events.collided_vehicles = np.bincount(env, minlength=b)
+        self.collided += events.collided_vehicles
+        events.collided_env = env
+        events.collided_area = self.network.control_area(view.lane[hit], s_new[hit])
+        self.active.ravel()[view.vehicle[hit]] = False
+
+    def _enter_vehicles(self, now_s: float, events: StepEvents) -> None:
+        c = self.config
+        self.arrivals.advance(now_s)
+        want = self.arrivals.queued > 0
+        if not want.any():
+            return
+        # A lane is blocked while any of its vehicles is closer than the clearance to its entry.
+        blocked = np.zeros_like(want)
+        near = self.active & (self.s < c.entry_clearance_m)
+        if near.any():
+            bb, kk = np.nonzero(near)
+            blocked[bb, self.lane[bb, kk]] = True
+        go = want & ~blocked
+        env, lane = np.nonzero(go)
+        if env.size == 0:
+            return
+        t_arr = self.arrivals.head_arrival_time()[env, lane]
+        n_new = np.bincount(env, minlength=self.batch_size)
+        free_count = self.capacity - self.active.sum(axis=1)
+        if (n_new > free_count).any():
+            self._grow(int(n_new.max() + self.active.sum(axis=1).max()))
+        free_env, free_slot = np.nonzero(~self.active)
+        first_free = np.searchsorted(free_env, np.arange(self.batch_size))
+        ordinal = np.arange(env.size) - np.searchsorted(env, env)  # rank within its env
+        slot = free_slot[first_free[env] + ordinal]
+        self.active[env, slot] = True
+        self.lane[env, slot] = lane
+        self.s[env, slot] = 0.0
+        self.v[env, slot] = c.v_init_mps
+        self.a[env, slot] = 0.0
+        self.t_arrive[env, slot] = t_arr
+        self.t_enter[env, slot] = now_s
+        self.vid[env, slot] = self.next_vid[env] + ordinal
+        self.next_vid += n_new
+        self.arrivals.pop(go)
+        events.entered = n_new
+
+    def _grow(self, needed: int) -> None:
+        new_cap = max(2 * self.capacity, needed + 16)
+        pad = new_cap - self.capacity
+        for name, fill in (("active", False), ("lane", 0), ("s", 0.0), ("v", 0.0), ("a", 0.0),
+                           ("t_arrive", 0.0), ("t_enter", 0.0), ("vid", -1)):
+            arr = getattr(self, name)
+            setattr(self, name, np.pad(arr, ((0, 0), (0, pad)), constant_values=fill))
+
+    # ------------------------------------------------------------------------------------
+    def vehicle_table(self, env: int = 0) -> dict[str, np.ndarray]:
+        """Arrays describing the vehicles of one environment (for rendering and tests)."""
+        m = self.active[env]
+        lane, s = self.lane[env, m], self.s[env, m]
+        return {
+            "vid": self.vid[env, m], "lane": lane, "s": s, "v": self.v[env, m],
+            "a": self.a[env, m], "xy": self.network.xy(lane, s),
+        }
+
+
+def collision_pairs(
+    network: GridNetwork,
+    view: VirtualLaneView,
+    s_new: FloatArray,
+    exited: NDArray[np.bool_],
+    vehicle_length_m: float,
+) -> IntArray:
+    """(k, 2) view indices of vehicle pairs closer than ``vehicle_length_m`` after a move.
+
+    Two vehicles can only be that close on the same lane (checked between own-lane neighbours,
+    whose order cannot change within one step) or on two crossing lanes near their shared
+    conflict point, where their Euclidean distance is ``hypot(delta_1, delta_2)`` with
+    ``delta`` the signed distance of each to the point. Exited vehicles are ignored.
+    """
+    pairs = []
+    stay = ~exited
+    lead = view.leader
+    has = (lead >= 0) & stay
+    has[has] &= stay[lead[has]]
+    i = np.flatnonzero(has)
+    close = s_new[lead[i]] - s_new[i] < vehicle_length_m
+    if close.any():
+        pairs.append(np.stack([i[close], lead[i[close]]], axis=1))
+
+    delta = s_new[:, None] - network.lane_cp_s[view.lane]
+    vi, ci = np.nonzero((np.abs(delta) < vehicle_length_m) & stay[:, None])
+    if vi.size > 1:
+        cp = network.lane_cp[view.lane[vi], ci]
+        key = view.env[vi] * network.n_cp + cp
+        order = np.argsort(key, kind="stable")
+        vi, key, d = vi[order], key[order], delta[vi, ci][order]
+        lanes = view.lane[vi]
+        for shift in range(1, 8):  # at most a few vehicles share a conflict point
+            if shift >= vi.size:
+                break
+            a, b = slice(0, vi.size - shift), slice(shift, vi.size)
+            hit = (key[a] == key[b]) & (lanes[a] != lanes[b])
+            hit &= d[a] ** 2 + d[b] ** 2 < vehicle_length_m**2
+            if hit.any():
+                pairs.append(np.stack([vi[a][hit], vi[b][hit]], axis=1))
+    if not pairs:
+        return np.zeros((0, 2), dtype=np.int64)
+    return np.unique(np.sort(np.concatenate(pairs), axis=1), axis=0)

@@ -1,0 +1,88 @@
+"""Signalized baseline: fixed-time signal heads and IDM car-following.
+
+Each intersection runs a two-phase fixed-time plan: east-west green, yellow, all-red, then
+north-south green, yellow, all-red (cycle ``2 (green + yellow + all_red)``), shifted by
+``signal_offset_s * (row + col)`` (a simple green wave; 0 by default). A vehicle treats a red
+head as a standing vehicle at the stop line; on yellow it stops if it can do so with the
+comfortable deceleration, else it goes on. Car-following is the Intelligent Driver Model (IDM)
+towards the nearer of the own-lane leader and a red stop line. Velocity floor is 0.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mivecc_env.config import MiVeCCConfig
+
+if TYPE_CHECKING:
+    from mivecc_env.sim.core import Simulator
+    from mivecc_env.sim.virtual_lane import VirtualLaneView
+
+FloatArray = NDArray[np.float64]
+
+GREEN, YELLOW, RED = 0, 1, 2
+
+
+def phase_states(config: MiVeCCConfig, time_s: float) -> NDArray[np.int64]:
+    """(n_intersections, 2) head state of the (east-west, north-south) approaches."""
+    g, y, r = config.signal_green_s, config.signal_yellow_s, config.signal_all_red_s
+    half = g + y + r
+    rows, cols = np.divmod(np.arange(config.n_intersections), config.cols)
+    t = (time_s - config.signal_offset_s * (rows + cols)) % (2 * half)
+    states = np.full((config.n_intersections, 2), RED, dtype=np.int64)
+    for phase in (0, 1):
+        local = t - phase * half
+        states[:, phase] = np.where(
+            (local >= 0) & (local < g), GREEN,
+            np.where((local >= g) & (local < g + y), YELLOW, RED),
+        )
+    return states
+
+
+def stop_line_offset_m(config: MiVeCCConfig) -> float:
+    """Distance of the stop line before an intersection centre [m] (vehicle centre)."""
+    return config.lane_offset_m + config.vehicle_length_m + 1.0
+
+
+def idm_accel(
+    v: FloatArray, gap_m: FloatArray, v_lead: FloatArray, config: MiVeCCConfig
+) -> FloatArray:
+    """IDM acceleration [m/s^2] towards a leader ``gap_m`` ahead (bumper to bumper)."""
+    a, b = config.a_max_mps2, config.idm_comfort_decel_mps2
+    s_star = config.idm_min_gap_m + np.maximum(
+        0.0, v * config.idm_time_headway_s + v * (v - v_lead) / (2.0 * np.sqrt(a * b))
+    )
+    free = 1.0 - (v / config.v_max_mps) ** config.idm_delta
+    interaction = (s_star / np.maximum(gap_m, 0.01)) ** 2
+    return a * (free - np.where(np.isfinite(gap_m), interaction, 0.0))
+
+
+def signalized_accel(
+    sim: Simulator, view: VirtualLaneView, s: FloatArray, v: FloatArray
+) -> FloatArray:
+    """Acceleration of every vehicle of the view under signal control [m/s^2]."""
+    c, net = sim.config, sim.network
+    length = c.vehicle_length_m
+    leader = view.leader
+    gap_leader = np.where(leader >= 0, s[np.maximum(leader, 0)] - s - length, np.inf)
+    v_leader = np.where(leader >= 0, v[np.maximum(leader, 0)], 0.0)
+    a = idm_accel(v, gap_leader, v_leader, c)
+
+    # Next stop line ahead on the vehicle's lane.
+    stop_s = net.lane_centres_s[view.lane] - stop_line_offset_m(c)  # (n, n_on)
+    ahead = stop_s > s[:, None] + 1e-9
+    k = np.argmax(ahead, axis=1)
+    has_stop = ahead.any(axis=1)
+    n = s.size
+    line = stop_s[np.arange(n), k]
+    inter = net.lane_intersections[view.lane, k]
+    phase = np.where(net.lane_horizontal[view.lane], 0, 1)
+    state = phase_states(c, sim.time_s)[np.maximum(inter, 0), phase]
+    dist = line - s
+    can_stop = dist >= v * v / (2.0 * c.idm_comfort_decel_mps2)
+    stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
+    a_line = idm_accel(v, np.where(stop, dist, np.inf), np.zeros_like(v), c)
+    return np.minimum(a, np.where(stop, a_line, np.inf))

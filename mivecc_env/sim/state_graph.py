@@ -1,0 +1,195 @@
+"""Decision-vehicle selection and K x K x 3 state graphs of the edge and cloud nodes.
+
+A state graph has shape ``(K, K, 3)`` (rows, columns, channels position/velocity/acceleration).
+Column ``j`` belongs to decision vehicle ``j``: row 0 is the vehicle itself, rows ``1..K-1`` its
+``K - 1`` nearest reference vehicles on its virtual lane, nearest first. Fewer vehicles than K
+leave zero padding; ``mask`` marks the real columns.
+
+Features (all scaled to ``[-1, 1]``):
+
+* position: row 0, the signed distance from the next conflict point ahead (the lane end once
+  past the last one), negative before it; other rows, the reference's position minus the
+  decision vehicle's on the virtual lane. Divided by the node's position scale
+  (edge: ``2 * control_radius_m``, cloud: the longest lane) and clipped to ``[-1, 1]``.
+* velocity: ``2 (v - v_floor) / (v_max - v_floor) - 1``.
+* acceleration: ``a / a_max``.
+
+Edge node of intersection ``i``: decision vehicles are the (up to) K vehicles with the lowest
+safety value inside its control area; references come from the part of the virtual lane inside
+that area. Cloud node: the K vehicles with the highest density indicator in the whole network;
+references from the whole virtual lane.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim.network import GridNetwork
+from mivecc_env.sim.virtual_lane import VirtualLaneView
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class StateGraphs:
+    """State graphs of one node kind for a batch of environments.
+
+    Attributes:
+        obs: (B, n_nodes, K, K, 3) float32 features.
+        mask: (B, n_nodes, K) float32, 1 for a real decision vehicle.
+        slot: (B, n_nodes, K) flat vehicle slot (``env * capacity + slot``) of each column,
+            -1 for padding.
+        view_index: (B, n_nodes, K) index of each column's vehicle in the view, -1 padding.
+    """
+
+    obs: NDArray[np.float32]
+    mask: NDArray[np.float32]
+    slot: IntArray
+    view_index: IntArray
+
+
+def _rank_in_groups(sorted_groups: IntArray) -> IntArray:
+    """Position of each element within its run of equal, sorted group ids."""
+    if sorted_groups.size == 0:
+        return sorted_groups.copy()
+    first = np.searchsorted(sorted_groups, sorted_groups, side="left")
+    return np.arange(sorted_groups.size) - first
+
+
+def select_edge_decisions(
+    network: GridNetwork, view: VirtualLaneView, sv: FloatArray, k: int, config: MiVeCCConfig
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Up to ``k`` lowest-SV vehicles per (environment, control area).
+
+    Returns:
+        (view index, node = env * n_intersections + intersection, column) of each decision.
+    """
+    area = network.control_area(view.lane, view.s)
+    inside = np.flatnonzero(area >= 0)
+    node = view.env[inside] * network.n_intersections + area[inside]
+    span = config.sv_max - config.sv_min + 1.0
+    order = np.argsort(node * span + (sv[inside] - config.sv_min), kind="stable")
+    chosen, node = inside[order], node[order]
+    column = _rank_in_groups(node)
+    keep = column < k
+    return chosen[keep], node[keep], column[keep]
+
+
+def select_cloud_decisions(
+    view: VirtualLaneView, di: FloatArray, k: int, di_max: float
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Up to ``k`` highest-DI vehicles per environment: (view index, env, column)."""
+    span = di_max + 1.0
+    order = np.argsort(view.env * span + (di_max - np.minimum(di, di_max)), kind="stable")
+    env = view.env[order]
+    column = _rank_in_groups(env)
+    keep = column < k
+    return order[keep], env[keep], column[keep]
+
+
+def build_graphs(
+    network: GridNetwork,
+    view: VirtualLaneView,
+    velocity: FloatArray,
+    accel: FloatArray,
+    decision: IntArray,
+    node: IntArray,
+    column: IntArray,
+    n_nodes: int,
+    batch: int,
+    k: int,
+    position_scale_m: float,
+    config: MiVeCCConfig,
+    area_centre_s: FloatArray | None = None,
+    area_radius_m: float = np.inf,
+) -> StateGraphs:
+    """Fill the K x K x 3 graphs of the given decisions.
+
+    Args:
+        velocity / accel: (n,) per view vehicle [m/s], [m/s^2].
+        decision / node / column: selections from ``select_*_decisions`` (node is
+            ``env * n_nodes + node_in_env``).
+        area_centre_s: (len(decision),) centre of each decision's area on its lane [m];
+            references outside ``area_radius_m`` of it are ignored (edge nodes).
+    """
+    obs = np.zeros((batch * n_nodes, k, k, 3), dtype=np.float32)
+    mask = np.zeros((batch * n_nodes, k), dtype=np.float32)
+    slot = np.full((batch * n_nodes, k), -1, dtype=np.int64)
+    view_index = np.full((batch * n_nodes, k), -1, dtype=np.int64)
+    shape = (batch, n_nodes, k)
+    if decision.size == 0:
+        return StateGraphs(obs.reshape(*shape, k, 3), mask.reshape(shape), slot.reshape(shape),
+                           view_index.reshape(shape))
+
+    v_lo = config.velocity_floor_mps
+    v_scale = (config.v_max_mps - v_lo) / 2.0
+
+    def scaled(pos: FloatArray, vel: FloatArray, acc: FloatArray) -> FloatArray:
+        return np.stack([
+            np.clip(pos / position_scale_m, -1.0, 1.0),
+            (vel - v_lo) / v_scale - 1.0,
+            acc / config.a_max_mps2,
+        ], axis=-1)
+
+    s_d = view.s[decision]
+    to_stop = s_d - network.next_stop_s(view.lane[decision], s_d)
+    obs[node, 0, column] = scaled(to_stop, velocity[decision], accel[decision])
+
+    # Reference candidates: the K-1 points on either side on the sorted virtual lane.
+    p = view.own_point[decision]
+    offsets = np.concatenate([np.arange(-(k - 1), 0), np.arange(1, k)])
+    cand = p[:, None] + offsets[None, :]
+    valid = (cand >= view.point_run_start[p][:, None]) & (cand < view.point_run_end[p][:, None])
+    cand = np.clip(cand, 0, view.point_pos.size - 1)
+    pos = view.point_pos[cand]
+    if area_centre_s is not None:
+        valid &= np.abs(pos - area_centre_s[:, None]) <= area_radius_m
+    dist = np.where(valid, np.abs(pos - s_d[:, None]), np.inf)
+    nearest = np.argsort(dist, axis=1, kind="stable")[:, : k - 1]
+    chosen = np.take_along_axis(cand, nearest, axis=1)
+    real = np.isfinite(np.take_along_axis(dist, nearest, axis=1))
+    ref_vehicle = view.point_vehicle[chosen]
+    feats = scaled(view.point_pos[chosen] - s_d[:, None], velocity[ref_vehicle],
+                   accel[ref_vehicle]) * real[..., None]
+    obs[node[:, None], np.arange(1, k)[None, :], column[:, None]] = feats
+
+    mask[node, column] = 1.0
+    slot[node, column] = view.vehicle[decision]
+    view_index[node, column] = decision
+    return StateGraphs(obs.reshape(*shape, k, 3), mask.reshape(shape), slot.reshape(shape),
+                       view_index.reshape(shape))
+
+
+def edge_graphs(
+    network: GridNetwork, view: VirtualLaneView, sv: FloatArray, velocity: FloatArray,
+    accel: FloatArray, batch: int, config: MiVeCCConfig,
+) -> StateGraphs:
+    """Edge-node graphs, (B, n_intersections, K_edge, K_edge, 3)."""
+    k = config.k_edge
+    decision, node, column = select_edge_decisions(network, view, sv, k, config)
+    area = node % network.n_intersections
+    lane = view.lane[decision]
+    which = np.argmax(network.lane_intersections[lane] == area[:, None], axis=1)
+    centre = network.lane_centres_s[lane, which]
+    return build_graphs(
+        network, view, velocity, accel, decision, node, column, network.n_intersections,
+        batch, k, 2.0 * config.control_radius_m, config, centre, config.control_radius_m,
+    )
+
+
+def cloud_graphs(
+    network: GridNetwork, view: VirtualLaneView, di: FloatArray, velocity: FloatArray,
+    accel: FloatArray, batch: int, config: MiVeCCConfig,
+) -> StateGraphs:
+    """Cloud-node graph, (B, 1, K_cloud, K_cloud, 3)."""
+    k = config.k_cloud
+    longest = float(network.lane_length.max())
+    decision, env, column = select_cloud_decisions(view, di, k, longest)
+    return build_graphs(
+        network, view, velocity, accel, decision, env, column, 1, batch, k, longest, config
+    )
