@@ -293,4 +293,5 @@ def from_overrides(base: MiVeCCConfig | None = None, **overrides: Any) -> MiVeCC
 
 def describe_fields() -> list[tuple[str, Any, str]]:
     """(name, default, description) of every field, for documentation and the CLI."""
-    return [(f.name, f.default, f.metadata.get("doc", "")) for f in dataclasses.fields(MiVeCCConfig)]
+    fields = dataclasses.fields(MiVeCCConfig)
+    return [(f.name, f.default, f.metadata.get("doc", "")) for f in fields]

@@ -65,7 +65,8 @@ class ArrivalProcess:
         if self.generated[b, lane] + CHUNK - self.entered[b, lane] > cap:
             self._grow()
             cap = self.times.shape[2]
-        gaps = np.maximum(self._rngs[b][lane].exponential(self.mean_gap_s, CHUNK), self.min_headway_s)
+        draws = self._rngs[b][lane].exponential(self.mean_gap_s, CHUNK)
+        gaps = np.maximum(draws, self.min_headway_s)
         times = self._last[b, lane] + np.cumsum(gaps)
         idx = (self.generated[b, lane] + np.arange(CHUNK)) % cap
         self.times[b, lane, idx] = times

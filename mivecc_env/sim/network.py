@@ -121,6 +121,14 @@ class GridNetwork:
         return np.where(np.isfinite(ahead), ahead, self.lane_length[lane])
 
 
+def _add_lane(origin: list, direction: list, length: list, heading: list,
+              start: tuple, unit: tuple, size: float, head: int) -> None:
+    origin.append(start)
+    direction.append(unit)
+    length.append(size)
+    heading.append(head)
+
+
 def build_grid(
     rows: int, cols: int, segment_length_m: float, lane_offset_m: float,
     control_radius_m: float,
@@ -133,17 +141,13 @@ def build_grid(
 
     origin, direction, length, heading = [], [], [], []
     for y in ys:  # eastbound: south side of the road
-        origin.append((0.0, y - off)); direction.append((1.0, 0.0)); length.append(width)
-        heading.append(0)
+        _add_lane(origin, direction, length, heading, (0.0, y - off), (1.0, 0.0), width, 0)
     for y in ys:  # westbound: north side
-        origin.append((width, y + off)); direction.append((-1.0, 0.0)); length.append(width)
-        heading.append(1)
+        _add_lane(origin, direction, length, heading, (width, y + off), (-1.0, 0.0), width, 1)
     for x in xs:  # northbound: east side
-        origin.append((x + off, 0.0)); direction.append((0.0, 1.0)); length.append(height)
-        heading.append(2)
+        _add_lane(origin, direction, length, heading, (x + off, 0.0), (0.0, 1.0), height, 2)
     for x in xs:  # southbound: west side
-        origin.append((x - off, height)); direction.append((0.0, -1.0)); length.append(height)
-        heading.append(3)
+        _add_lane(origin, direction, length, heading, (x - off, height), (0.0, -1.0), height, 3)
     lane_origin = np.asarray(origin, dtype=np.float64)
     lane_dir = np.asarray(direction, dtype=np.float64)
     lane_length = np.asarray(length, dtype=np.float64)
