@@ -130,8 +130,12 @@ class MiVeCCConfig:
 
     # --- virtual lanes, selection, density indicator ------------------------------------
     projection_window_m: float = _num(
-        75.0, 0.0, 1000.0, "a crossing vehicle is projected onto a lane while its signed "
-        "distance to the shared conflict point is within +- this window", lo_open=True,
+        75.0, 0.0, 1000.0, "a crossing vehicle is projected onto a lane from this far before "
+        "the shared conflict point", lo_open=True,
+    )
+    projection_clear_m: float = _num(
+        10.0, 0.0, 1000.0, "... until this far past it (default 2 * lane_offset_m: until it "
+        "has cleared the intersection box, as in the released code)",
     )
     control_radius_m: float = _num(
         75.0, 0.0, 1000.0, "edge control area: vehicles within this distance (along their "

@@ -169,7 +169,8 @@ class Simulator:
 
     def _refresh_view(self) -> None:
         self._view = build_view(
-            self.network, self.config.projection_window_m, self.active, self.lane, self.s
+            self.network, self.config.projection_window_m, self.config.projection_clear_m,
+            self.active, self.lane, self.s,
         )
         self._safety = self._compute_safety(self._view)
 

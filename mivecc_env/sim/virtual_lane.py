@@ -79,6 +79,7 @@ class VirtualLaneView:
 def build_view(
     network: GridNetwork,
     window_m: float,
+    clear_m: float,
     active: NDArray[np.bool_],
     lane: IntArray,
     s: FloatArray,
@@ -87,7 +88,8 @@ def build_view(
 
     Args:
         network: the grid geometry.
-        window_m: projection window around each conflict point [m].
+        window_m: a crossing vehicle is projected from this far before a conflict point [m]
+        clear_m: ... until this far past it [m].
         active: (B, capacity) occupied vehicle slots.
         lane: (B, capacity) through lane of each slot.
         s: (B, capacity) distance from the lane entry [m].
@@ -102,7 +104,7 @@ def build_view(
 
     # Projections of every vehicle onto the lanes it crosses near a conflict point.
     delta = v_s[:, None] - network.lane_cp_s[v_lane]  # (n, n_cp_lane); inf padding
-    near_v, near_c = np.nonzero(np.abs(delta) <= window_m)
+    near_v, near_c = np.nonzero((delta >= -window_m) & (delta <= clear_m))
     other_lane = network.lane_cp_other_lane[v_lane[near_v], near_c]
     proj_pos = network.lane_cp_other_s[v_lane[near_v], near_c] + delta[near_v, near_c]
 
@@ -113,7 +115,7 @@ def build_view(
     own[:n] = True
 
     # One sort by (group, position): positions are in [-window, lane_length + window].
-    span = float(network.lane_length.max()) + 2.0 * window_m + 1.0
+    span = float(network.lane_length.max()) + window_m + clear_m + 1.0
     order = np.argsort(group * span + (pos + window_m), kind="stable")
     group, pos, src, own = group[order], pos[order], src[order], own[order]
 
