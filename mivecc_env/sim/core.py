@@ -380,13 +380,19 @@ def collision_pairs(
     if close.any():
         pairs.append(np.stack([i[close], lead[i[close]]], axis=1))
 
-    delta = s_new[:, None] - network.lane_cp_s[view.lane]
-    vi, ci = np.nonzero((np.abs(delta) < vehicle_length_m) & stay[:, None])
+    # Only vehicles near an intersection centre can be near a conflict point.
+    seg = network.segment_length_m
+    to_centre = np.abs(s_new - np.round(s_new / seg) * seg)
+    near = np.flatnonzero(stay & (to_centre < network.lane_offset_m + vehicle_length_m))
+    delta = s_new[near, None] - network.lane_cp_s[view.lane[near]]
+    vi, ci = np.nonzero(np.abs(delta) < vehicle_length_m)
+    delta = delta[vi, ci]
+    vi = near[vi]
     if vi.size > 1:
         cp = network.lane_cp[view.lane[vi], ci]
         key = view.env[vi] * network.n_cp + cp
         order = np.argsort(key, kind="stable")
-        vi, key, d = vi[order], key[order], delta[vi, ci][order]
+        vi, key, d = vi[order], key[order], delta[order]
         lanes = view.lane[vi]
         for shift in range(1, 8):  # at most a few vehicles share a conflict point
             if shift >= vi.size:

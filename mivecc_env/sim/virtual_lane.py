@@ -116,7 +116,7 @@ def build_view(
 
     # One sort by (group, position): positions are in [-window, lane_length + window].
     span = float(network.lane_length.max()) + window_m + clear_m + 1.0
-    order = np.argsort(group * span + (pos + window_m), kind="stable")
+    order = np.argsort(group * span + (pos + window_m))
     group, pos, src, own = group[order], pos[order], src[order], own[order]
 
     size = group.size
