@@ -1,0 +1,257 @@
+"""The ``mivecc`` command line.
+
+Commands (one ``add_<command>_parser`` and one ``cmd_<command>`` function each; a new command
+is added by writing those two and listing the first in :data:`COMMANDS`):
+
+* ``mivecc fields``: list the configuration fields that ``--set`` accepts.
+* ``mivecc evaluate``: run a scheme (``E``, ``EE``, ``EEC`` or the ``signalized`` baseline)
+  for some steps on one or more seeds and print the traffic metrics (a table, or JSON with
+  ``--json``).
+
+Examples::
+
+    mivecc evaluate --scheme E --rows 3 --cols 3 --density 2100 --steps 3000 --seed 0 --json
+    mivecc evaluate --scheme signalized --seeds 0 1 2 --out results.json
+    mivecc evaluate --scheme E --end-rule literal --same-lane-rule --set omega=0.3
+
+A bad configuration value exits with status 2 and the message on stderr (no traceback).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from mivecc_agents.evaluation import SCHEMES, aggregate, evaluate_scheme
+from mivecc_env import __version__
+from mivecc_env.config import ALIASES, ConfigError, describe_fields
+
+PROG = "mivecc"
+
+#: Config fields that have their own option; ``--set`` may not give them too.
+_DEDICATED = {
+    "rows": "--rows", "cols": "--cols", "density_vplh": "--density", "max_steps": "--steps",
+    "scheme": "--scheme",
+}
+
+#: Keys printed (in this order) by the readable table of ``evaluate``.
+_TABLE_KEYS: tuple[str, ...] = (
+    "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
+    "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
+    "backlog", "in_network", "arrived", "mean_trip_time_s", "mean_wait_time_s", "sim_time_s",
+    "steps", "steps_per_s",
+)
+
+
+# ----------------------------------------------------------------------------------------------
+# shared option groups (reusable by later commands, e.g. ``train``)
+def parse_set_value(text: str) -> Any:
+    """Turn the value of ``--set key=value`` into a bool, None, int, float or string."""
+    low = text.strip().lower()
+    if low in ("true", "yes", "on"):
+        return True
+    if low in ("false", "no", "off"):
+        return False
+    if low in ("none", "null"):
+        return None
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def parse_set_items(items: Sequence[str] | None) -> dict[str, Any]:
+    """``["key=value", ...]`` -> ``{key: value}``; a malformed item raises ConfigError."""
+    out: dict[str, Any] = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f"--set: expected key=value, got {item!r}")
+        out[key] = parse_set_value(value)
+    return out
+
+
+def add_config_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options that shape the simulated network and model (grid, demand, rule readings)."""
+    g = parser.add_argument_group("configuration")
+    g.add_argument("--rows", type=int, default=3, help="intersection rows (default 3)")
+    g.add_argument("--cols", type=int, default=3, help="intersection columns (default 3)")
+    g.add_argument("--density", type=float, default=2100.0,
+                   help="arrivals per entry lane [veh/lane/h] (default 2100)")
+    g.add_argument("--end-rule", choices=("sensible", "literal"), default=None,
+                   help="end-node rule reading (default: the config's, 'sensible')")
+    g.add_argument("--same-lane-rule", action="store_true", default=None,
+                   help="enable the released code's same-lane rule")
+    g.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+", action="extend",
+                   default=[], help="any other config field, e.g. --set omega=0.3 "
+                   "edge_sv_gate=-2 (`mivecc fields` lists them)")
+
+
+def config_overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """Config overrides from :func:`add_config_arguments` options (not rows/cols/density)."""
+    overrides = parse_set_items(args.set_items)
+    for key in overrides:
+        name = ALIASES.get(key, key)
+        if name in _DEDICATED:
+            raise ConfigError(f"{key}: use {_DEDICATED[name]} instead of --set")
+    for name, value in (("end_rule", args.end_rule), ("same_lane_rule", args.same_lane_rule)):
+        if value is None:
+            continue
+        if name in overrides and overrides[name] != value:
+            raise ConfigError(f"{name}: given both as --{name.replace('_', '-')} and --set")
+        overrides[name] = value
+    return overrides
+
+
+# ----------------------------------------------------------------------------------------------
+# evaluate
+def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """The ``evaluate`` subcommand."""
+    p = subparsers.add_parser(
+        "evaluate", help="run a scheme and print its traffic metrics",
+        description="Run one episode of the MiVeCC ParallelEnv per seed and print its metrics. "
+        "EE/EEC without trained policies run with zero coordinator actions (with a warning).",
+    )
+    p.add_argument("--scheme", choices=SCHEMES, default="E",
+                   help="E, EE, EEC, or the fixed-time 'signalized' baseline (default E)")
+    add_config_arguments(p)
+    p.add_argument("--steps", type=int, default=3000, help="env steps of 0.1 s (default 3000)")
+    p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    p.add_argument("--seeds", type=int, nargs="+", default=None,
+                   help="several seeds: one result per seed plus their mean (overrides --seed)")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON: one object, or {runs, mean, std} for several seeds")
+    p.add_argument("--out", type=Path, default=None,
+                   help="also write the JSON result to this file")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.set_defaults(func=cmd_evaluate)
+    return p
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        if math.isfinite(value) and value == int(value) and abs(value) < 1e12:
+            return str(int(value))
+        return f"{value:.4g}" if abs(value) >= 1e4 else f"{value:.3f}"
+    return str(value)
+
+
+def format_table(results: list[dict[str, Any]], mean: dict[str, Any] | None = None) -> str:
+    """A readable table: one column per run (and a mean column for several runs)."""
+    first = results[0]
+    head = (f"scheme {first['scheme']}  grid {first['rows']}x{first['cols']}  "
+            f"density {_fmt(first['density'])} veh/lane/h  end_rule {first['end_rule']}  "
+            f"same_lane_rule {first['same_lane_rule']}  coordinator actions "
+            f"{first['coordinator_actions']}")
+    columns = [f"seed {r['seed']}" for r in results]
+    cells = [[_fmt(r.get(k, "")) for r in results] for k in _TABLE_KEYS]
+    if mean is not None:
+        columns.append("mean")
+        for row, k in zip(cells, _TABLE_KEYS, strict=True):
+            row.append(_fmt(mean.get(k, "")))
+    w0 = max(len(k) for k in _TABLE_KEYS)
+    widths = [max(len(c), *(len(row[j]) for row in cells)) for j, c in enumerate(columns)]
+    lines = [head, "", "  ".join([" " * w0, *(c.rjust(w) for c, w in zip(columns, widths,
+                                                                           strict=True))])]
+    for k, row in zip(_TABLE_KEYS, cells, strict=True):
+        lines.append("  ".join([k.ljust(w0), *(v.rjust(w) for v, w in zip(row, widths,
+                                                                          strict=True))]))
+    return "\n".join(lines)
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Run ``evaluate``: one episode per seed, print and optionally save the metrics."""
+    overrides = config_overrides_from_args(args)
+    seeds = args.seeds if args.seeds else [args.seed]
+    results = [
+        evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps, seed,
+                        progress=not args.no_progress, warn=i == 0, **overrides)
+        for i, seed in enumerate(seeds)
+    ]
+    if len(results) == 1:
+        document: dict[str, Any] = results[0]
+        stats = None
+    else:
+        stats = aggregate(results)
+        document = {"runs": results, **stats}
+    text = json.dumps(document, indent=2, allow_nan=True)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text + "\n", encoding="utf-8")
+    if args.json:
+        print(text)
+    else:
+        print(format_table(results, stats["mean"] if stats else None))
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
+# fields
+def add_fields_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """The ``fields`` subcommand."""
+    p = subparsers.add_parser(
+        "fields", help="list the configuration fields (for --set) with their defaults",
+        description="List every MiVeCCConfig field with its default and meaning.",
+    )
+    p.set_defaults(func=cmd_fields)
+    return p
+
+
+def cmd_fields(args: argparse.Namespace) -> int:
+    """Run ``fields``: print every config field, its default and its description."""
+    for name, default, doc in describe_fields():
+        print(f"{name} = {default!r}\n    {doc}")
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
+#: Subcommand builders, in the order ``--help`` lists them.
+COMMANDS: list[Callable[[Any], argparse.ArgumentParser]] = [add_evaluate_parser, add_fields_parser]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="MiVeCC: multi-intersection vehicular cooperative control.",
+    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for add in COMMANDS:
+        add(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``mivecc`` console script; returns the exit status."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version and usage errors
+        return exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 2)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args.func(args))
+    except ConfigError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # e.g. `mivecc fields | head`
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - silence the flush at exit
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

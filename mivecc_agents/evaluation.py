@@ -1,0 +1,229 @@
+"""Evaluate a control scheme on the MiVeCC ParallelEnv and summarise the episode.
+
+:func:`evaluate_scheme` runs one episode of ``mivecc_v0.parallel_env`` for a fixed number of
+steps and returns the traffic metrics of :func:`mivecc_env.metrics.episode_summary` together
+with the run's settings and its speed (env steps per wall-clock second).
+
+Schemes: ``E`` (end-node rules only), ``EE`` (rules + edge coordinators), ``EEC`` (rules + edge
++ cloud coordinators) and the baseline ``signalized`` (fixed-time signals with IDM
+car-following: config ``control="signalized"``, scheme ``E``). The coordinators' actions come
+from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
+``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
+``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
+(clipped to the box). A coordinator the scheme uses but for which no policy is given acts with
+zeros; the result then says ``"coordinator_actions": "zero"`` and a warning is printed.
+
+Example:
+    >>> r = evaluate_scheme("E", 1, 1, 900, steps=50, seed=0, progress=False)
+    >>> r["scheme"], r["steps"]
+    ('E', 50)
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import numpy as np
+
+from mivecc_env import mivecc_v0
+from mivecc_env.config import ConfigError
+from mivecc_env.parallel_env import CLOUD_AGENT
+
+#: A coordinator policy: (obs_batch (n, K, K, 3), mask (n, K)) -> actions (n, K).
+Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+#: Scheme names accepted by :func:`evaluate_scheme` (``signalized`` is the signal baseline).
+SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", "signalized")
+
+#: Keys every result of :func:`evaluate_scheme` has (besides the episode summary's).
+RESULT_KEYS: tuple[str, ...] = (
+    "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
+    "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
+    "backlog", "mean_trip_time_s", "steps", "steps_per_s", "scheme", "rows", "cols",
+    "density", "seed", "end_rule", "same_lane_rule",
+)
+
+#: Config fields reported with every result (the readings of ambiguous parts of the paper).
+CONFIG_READINGS: tuple[str, ...] = (
+    "control", "end_rule", "same_lane_rule", "edge_sv_gate", "sv_acc_source", "omega",
+)
+
+ZERO_ACTION_WARNING = (
+    "warning: scheme {scheme} runs with zero coordinator actions for {missing} because no "
+    "trained policy was given"
+)
+
+
+def _needed_policies(scheme: str) -> tuple[str, ...]:
+    """Coordinator kinds whose actions a scheme uses."""
+    return {"EE": ("edge",), "EEC": ("edge", "cloud")}.get(scheme, ())
+
+
+def _check_args(
+    scheme: str, steps: Any, seed: Any, policies: Mapping[str, Policy] | None,
+    overrides: Mapping[str, Any],
+) -> None:
+    """Raise :class:`ConfigError` naming the first bad argument."""
+    if scheme not in SCHEMES:
+        raise ConfigError(f"scheme: must be one of {list(SCHEMES)}, got {scheme!r}")
+    if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1:
+        raise ConfigError(f"steps: must be an integer >= 1, got {steps!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
+        raise ConfigError(f"seed: must be an integer >= 0, got {seed!r}")
+    for name, instead in (("density_vplh", "density"), ("max_steps", "steps"),
+                          ("scheme", "scheme"), ("rows", "rows"), ("cols", "cols")):
+        if name in overrides:
+            raise ConfigError(f"{name}: give it as the {instead!r} argument, not as an override")
+    if scheme == "signalized" and overrides.get("control", "signalized") != "signalized":
+        raise ConfigError(
+            f"control: scheme 'signalized' needs control='signalized', got {overrides['control']!r}"
+        )
+    if policies is not None:
+        unknown = set(policies) - {"edge", "cloud"}
+        if unknown:
+            raise ConfigError(
+                f"policies: keys must be 'edge' and/or 'cloud', got {sorted(unknown)}"
+            )
+
+
+def evaluate_scheme(
+    scheme: str,
+    rows: int,
+    cols: int,
+    density: float,
+    steps: int,
+    seed: int,
+    *,
+    policies: Mapping[str, Policy] | None = None,
+    progress: bool = True,
+    warn: bool = True,
+    **config_overrides: Any,
+) -> dict[str, Any]:
+    """Run one episode of ``steps`` env steps and return its metrics and settings.
+
+    Args:
+        scheme: ``"E"``, ``"EE"``, ``"EEC"`` or ``"signalized"``.
+        rows: intersection rows of the grid.
+        cols: intersection columns of the grid.
+        density: arrival rate per entry lane [veh/lane/h].
+        steps: env steps to run (the episode's ``max_steps``).
+        seed: seed of ``env.reset``.
+        policies: ``"edge"`` / ``"cloud"`` -> policy callable (see the module docstring);
+            a coordinator that the scheme uses and that has no policy acts with zeros.
+        progress: show a tqdm progress bar on stderr.
+        warn: print the zero-coordinator-action warning to stderr when it applies.
+        **config_overrides: further :class:`~mivecc_env.config.MiVeCCConfig` fields.
+
+    Returns:
+        The episode summary (:data:`mivecc_env.metrics.SUMMARY_KEYS`) plus ``steps``,
+        ``steps_per_s`` (env steps per wall-clock second of the stepping loop), ``wall_s``,
+        ``scheme``, ``rows``, ``cols``, ``density``, ``seed``, ``coordinator_actions``
+        (``"policy"``, ``"zero"`` or ``"unused"``) and the config readings
+        (:data:`CONFIG_READINGS`).
+
+    Raises:
+        ConfigError: a bad scheme, step count, seed or config value (the message names it).
+    """
+    _check_args(scheme, steps, seed, policies, config_overrides)
+    policies = dict(policies or {})
+    overrides = dict(config_overrides)
+    if scheme == "signalized":
+        overrides.update(scheme="E", control="signalized")
+    else:
+        overrides["scheme"] = scheme
+    env = mivecc_v0.parallel_env(
+        rows=rows, cols=cols, density=density, max_steps=int(steps), **overrides
+    )
+    cfg = env.config
+
+    needed = _needed_policies(cfg.scheme)
+    missing = [kind for kind in needed if kind not in policies]
+    if missing and warn:
+        print(ZERO_ACTION_WARNING.format(scheme=scheme, missing=" and ".join(missing)),
+              file=sys.stderr)
+    coordinator_actions = "unused" if not needed else ("zero" if missing else "policy")
+    edge_policy = policies.get("edge") if "edge" in needed else None
+    cloud_policy = policies.get("cloud") if "cloud" in needed else None
+
+    # Built once: the zero actions of every agent (policy outputs overwrite entries per step).
+    actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
+    edge_agents = list(env.edge_agents)
+    a_max = cfg.a_max_mps2
+
+    def act(policy: Policy, agents: list[str], obs: dict, infos: dict) -> None:
+        obs_batch = np.stack([obs[a] for a in agents])
+        mask = np.stack([infos[a]["mask"] for a in agents])
+        out = np.asarray(policy(obs_batch, mask), dtype=np.float32)
+        if out.shape != mask.shape:
+            raise ValueError(f"policy returned shape {out.shape}, expected {mask.shape}")
+        np.clip(out, -a_max, a_max, out=out)
+        for i, a in enumerate(agents):
+            actions[a] = out[i]
+
+    obs, infos = env.reset(seed=int(seed))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=int(steps), desc=f"{scheme} {rows}x{cols} @{density:g}",
+                   unit="step", file=sys.stderr, mininterval=0.5, leave=False)
+    step, update = env.step, (bar.update if bar is not None else None)
+    uses_policy = edge_policy is not None or cloud_policy is not None
+    chunk = 100
+    t0 = time.perf_counter()
+    for i in range(int(steps)):
+        if uses_policy:
+            if edge_policy is not None:
+                act(edge_policy, edge_agents, obs, infos)
+            if cloud_policy is not None:
+                act(cloud_policy, [CLOUD_AGENT], obs, infos)
+        obs, _, _, _, infos = step(actions)
+        if update is not None and (i + 1) % chunk == 0:
+            update(chunk)
+    wall = time.perf_counter() - t0
+    if bar is not None:
+        bar.update(int(steps) - bar.n)
+        bar.close()
+
+    result: dict[str, Any] = dict(env.summary())
+    result.update(
+        steps=int(steps),
+        steps_per_s=float(steps / wall) if wall > 0 else math.inf,
+        wall_s=float(wall),
+        scheme=scheme,
+        rows=int(cfg.rows),
+        cols=int(cfg.cols),
+        density=float(cfg.density_vplh),
+        seed=int(seed),
+        coordinator_actions=coordinator_actions,
+    )
+    for name in CONFIG_READINGS:
+        result[name] = getattr(cfg, name)
+    env.close()
+    return result
+
+
+def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Mean and (population) standard deviation over runs of every numeric key.
+
+    A key on which all runs agree keeps its value (standard deviation 0 when numeric);
+    ``seed`` becomes the list of seeds; other non-numeric keys that differ are left out.
+    """
+    mean: dict[str, Any] = {}
+    std: dict[str, Any] = {}
+    for key in results[0]:
+        values = [r.get(key) for r in results]
+        numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+        if key == "seed":
+            mean[key] = std[key] = values
+        elif numeric and not all(v == values[0] for v in values):
+            arr = np.asarray(values, dtype=np.float64)
+            mean[key], std[key] = float(arr.mean()), float(arr.std())
+        elif all(v == values[0] for v in values):
+            mean[key] = values[0]
+            std[key] = 0.0 if numeric else values[0]
+    return {"mean": mean, "std": std}
