@@ -1,0 +1,170 @@
+"""Saving and loading MiVeCC training checkpoints.
+
+A checkpoint is a plain ``dict`` written with :func:`torch.save` (only tensors, numbers, strings,
+lists and dicts, so it loads with ``torch.load(weights_only=True)``, no pickled code):
+
+=====================  ==============================================================
+key                    content
+=====================  ==============================================================
+``format``             :data:`CHECKPOINT_FORMAT` (marks a mivecc checkpoint)
+``format_version``     :data:`CHECKPOINT_FORMAT_VERSION`
+``package_version``    ``mivecc_env.__version__`` when written
+``env_version``        ``"mivecc_v0"``
+``config``             the environment config as a dict (``MiVeCCConfig.to_dict()``)
+``stage``              ``"edge"`` (stage I) or ``"cloud"`` (stage II)
+``kind``               network kind trained, ``"edge"`` or ``"cloud"``
+``grid_size``          K of the network (15 or 60)
+``preset``             the training preset as a dict
+``actor``              actor network state dict (``MiVeCCActorNet``)
+``critic``             critic network state dict (``MiVeCCCriticNet``)
+``loss``               DDPGLoss state dict (actor, critic and their target copies)
+``optimizer``          Adam state dict
+``frames``             environment frames collected so far
+``updates``            gradient updates done so far
+``metrics``            last logged metrics (dict of floats)
+``extra``              free-form (e.g. the edge checkpoint used in stage II)
+=====================  ==============================================================
+
+Files are written atomically (temporary file in the same folder, then :func:`os.replace`), so
+an interrupted save never leaves a truncated checkpoint behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+import mivecc_env
+from mivecc_agents.networks import get_network_spec
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "CHECKPOINT_FORMAT_VERSION",
+    "ENV_VERSION",
+    "CheckpointError",
+    "load_checkpoint",
+    "save_checkpoint",
+]
+
+CHECKPOINT_FORMAT = "mivecc-checkpoint"
+CHECKPOINT_FORMAT_VERSION = 1
+ENV_VERSION = "mivecc_v0"
+_REQUIRED = ("format_version", "kind", "grid_size", "actor", "critic", "stage")
+
+
+class CheckpointError(Exception):
+    """A file is not a usable mivecc checkpoint (missing, corrupt, wrong kind or version)."""
+
+
+def _plain(value: Any) -> Any:
+    """Convert numpy scalars / tuples to plain Python so ``weights_only=True`` can load them."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, torch.Tensor) or value is None or isinstance(value, (bool, int, str)):
+        return value
+    if isinstance(value, float):
+        return float(value)
+    if hasattr(value, "item"):  # numpy scalar
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
+    """Write a checkpoint atomically.
+
+    Args:
+        path: Destination file (parent folders are created).
+        payload: The checkpoint content (see the module docstring); ``format``,
+            ``format_version``, ``package_version`` and ``env_version`` are filled in.
+
+    Returns:
+        The path written.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    data = dict(payload)
+    data.update(
+        format=CHECKPOINT_FORMAT,
+        format_version=CHECKPOINT_FORMAT_VERSION,
+        package_version=mivecc_env.__version__,
+        env_version=ENV_VERSION,
+    )
+    data = _plain(data)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            torch.save(data, fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -> dict[str, Any]:
+    """Load and validate a checkpoint.
+
+    Args:
+        path: Checkpoint file.
+        expected_kind: If given, the network kind (``"edge"``/``"cloud"``) the caller needs.
+
+    Returns:
+        The checkpoint dict.
+
+    Raises:
+        CheckpointError: If the file is missing, unreadable/corrupt/truncated, not a mivecc
+            checkpoint, of a newer format version, of another network kind, or its K does not
+            match the network spec.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle/zip/EOF errors of many kinds
+        raise CheckpointError(
+            f"{path}: not a readable mivecc checkpoint (corrupt or truncated file?): "
+            f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        ) from exc
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: not a mivecc checkpoint (no '{CHECKPOINT_FORMAT}' marker)")
+    missing = [k for k in _REQUIRED if k not in data]
+    if missing:
+        raise CheckpointError(f"{path}: corrupt mivecc checkpoint, missing {missing}")
+    version = data["format_version"]
+    if not isinstance(version, int) or version > CHECKPOINT_FORMAT_VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint format version {version!r} is newer than this mivecc "
+            f"(reads up to {CHECKPOINT_FORMAT_VERSION}); upgrade mivecc"
+        )
+    if data.get("env_version", ENV_VERSION) != ENV_VERSION:
+        raise CheckpointError(
+            f"{path}: trained on env {data.get('env_version')!r}, this package provides "
+            f"{ENV_VERSION!r}"
+        )
+    kind = data["kind"]
+    if expected_kind is not None and kind != expected_kind:
+        raise CheckpointError(
+            f"{path}: holds a {kind!r} policy, but a {expected_kind!r} policy is needed"
+        )
+    try:
+        spec = get_network_spec(kind)
+    except ValueError as exc:
+        raise CheckpointError(f"{path}: unknown network kind {kind!r}") from exc
+    if data["grid_size"] != spec.grid_size:
+        raise CheckpointError(
+            f"{path}: K mismatch, checkpoint has K={data['grid_size']} but the {kind} network "
+            f"uses K={spec.grid_size}"
+        )
+    return data

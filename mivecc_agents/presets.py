@@ -1,0 +1,88 @@
+"""Training hyper-parameter presets.
+
+``paper``: the values of the paper's table (Section VII): Adam, lr actor 1e-3 and critic 0.05,
+both decayed linearly to 0, gamma 0.8, minibatch 48, soft update tau 0.01 ("0.99": the target
+keeps 99 % per update). ``stable``: the same but with learning rates that Adam can use
+(actor 1e-4, critic 1e-3) and gradient clipping. See ``docs/training.md`` for the measurement
+that picks the default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["DEFAULT_PRESET", "PRESETS", "TrainPreset", "get_preset"]
+
+
+@dataclass(frozen=True)
+class TrainPreset:
+    """DDPG hyper-parameters.
+
+    Attributes:
+        name: Preset name.
+        lr_actor: Initial actor learning rate (decayed linearly to 0 over the run).
+        lr_critic: Initial critic learning rate (decayed linearly to 0 over the run).
+        gamma: Discount factor.
+        batch_size: Minibatch size [transitions].
+        tau: Soft-update rate of the target networks (target keeps ``1 - tau``).
+        sigma_init: Initial std of the Gaussian exploration noise [m/s^2].
+        sigma_end: Final std of the noise [m/s^2] (reached after ``sigma_anneal_fraction``).
+        sigma_anneal_fraction: Fraction of the run over which sigma is annealed.
+        frames_per_batch: Environment steps collected per iteration (per density env).
+        updates_per_frame: Gradient updates per collected frame (update-to-data ratio).
+        warmup_frames: Transitions in the buffer before learning starts.
+        buffer_size: Replay capacity [transitions] (capped by ``buffer_memory_mb``).
+        buffer_memory_mb: Memory cap of the replay storage [MiB].
+        max_grad_norm: Gradient clipping (``None``: no clipping).
+        episode_steps: Steps per episode (env ``max_steps``); 3000 = 300 s at 0.1 s.
+    """
+
+    name: str
+    lr_actor: float
+    lr_critic: float
+    gamma: float = 0.8
+    batch_size: int = 48
+    tau: float = 0.01
+    sigma_init: float = 1.0
+    sigma_end: float = 0.1
+    sigma_anneal_fraction: float = 0.8
+    frames_per_batch: int = 100
+    updates_per_frame: float = 0.5
+    warmup_frames: int = 480
+    buffer_size: int = 100_000
+    buffer_memory_mb: int = 1024
+    max_grad_norm: float | None = None
+    episode_steps: int = 3000
+
+    def replace(self, **changes: Any) -> TrainPreset:
+        """A copy with some fields changed."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Fields as a plain dict."""
+        return dataclasses.asdict(self)
+
+
+PRESETS: dict[str, TrainPreset] = {
+    "paper": TrainPreset(name="paper", lr_actor=1e-3, lr_critic=0.05),
+    "stable": TrainPreset(name="stable", lr_actor=1e-4, lr_critic=1e-3, max_grad_norm=10.0),
+}
+
+DEFAULT_PRESET = "stable"
+"""Preset used when none is named (the paper's critic lr diverges with Adam; docs/training.md)."""
+
+
+def get_preset(name: str | TrainPreset) -> TrainPreset:
+    """Return a preset by name (or pass a TrainPreset through).
+
+    Raises:
+        ValueError: If the name is unknown.
+    """
+    if isinstance(name, TrainPreset):
+        return name
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)}") from None

@@ -1,0 +1,633 @@
+"""Two-stage DDPG training of the MiVeCC coordinators with TorchRL.
+
+Stage I (``stage="edge"``): scheme ``EE``, the edge policy shared by all edge nodes is trained;
+the cloud group acts with zeros (ignored by ``EE`` anyway). Stage II (``stage="cloud"``): scheme
+``EEC``, the edge policy is loaded from a stage-I checkpoint and frozen (no gradient, no noise),
+the cloud policy is trained.
+
+Pipeline: ``PettingZooWrapper`` (groups ``edge`` and ``cloud``) -> ``RenameTransform`` copying
+``(g, "info", "mask")`` to ``(g, "mask")`` (root and ``next``) -> ``SerialEnv`` with one env per
+training density -> ``Collector`` (``MultiSyncCollector`` with ``workers > 1``, ``RayCollector``
+with ``ray_address``) -> ``TensorDictReplayBuffer(LazyTensorStorage)`` holding only the trained
+group's keys -> ``DDPGLoss`` (target actor and critic, TD(0), gamma) + ``SoftUpdate`` + Adam with
+learning rates decayed linearly to 0 (``LambdaLR``).
+
+Masking: padded columns (no vehicle) are zeroed by the actor, again after the exploration noise,
+and the critic multiplies the action by the mask. The critic outputs one value per agent (not
+per column), so padded columns enter neither the TD error nor the actor gradient: the plain
+mean of DDPGLoss is already the right loss, no masked reduction is needed.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections.abc import Callable, Sequence
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictSequential
+from torch import nn
+
+from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
+from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
+
+__all__ = [
+    "GROUPS",
+    "STAGES",
+    "TrainingError",
+    "make_env",
+    "make_policy",
+    "plot_learning_curve",
+    "train",
+]
+
+GROUPS = ("edge", "cloud")
+STAGES: dict[str, dict[str, str]] = {
+    "edge": {"scheme": "EE", "group": "edge"},
+    "cloud": {"scheme": "EEC", "group": "cloud"},
+}
+
+
+class TrainingError(RuntimeError):
+    """Training cannot start (bad arguments, missing stage-I checkpoint, missing ray...)."""
+
+
+# --------------------------------------------------------------------------------------------
+# Environment
+def make_env(config_overrides: dict[str, Any] | None = None, scheme: str | None = None):
+    """Build the TorchRL env: PettingZoo wrapper + ``(g, "mask")`` at root and under ``next``.
+
+    Args:
+        config_overrides: MiVeCC config fields (``rows``, ``cols``, ``density``, ...).
+        scheme: ``"E"``, ``"EE"`` or ``"EEC"`` (overrides the config's).
+
+    Returns:
+        A ``TransformedEnv`` with groups ``edge`` and ``cloud``.
+    """
+    from torchrl.envs import Compose, PettingZooWrapper, RenameTransform, RewardSum, TransformedEnv
+
+    from mivecc_env import mivecc_v0
+
+    overrides = dict(config_overrides or {})
+    if scheme is not None:
+        overrides["scheme"] = scheme
+    base = PettingZooWrapper(
+        mivecc_v0.parallel_env(**overrides),
+        use_mask=False,
+        categorical_actions=False,
+        return_state=False,
+    )
+    groups = [g for g in GROUPS if g in base.group_map]
+    return TransformedEnv(
+        base,
+        Compose(
+            RenameTransform(
+                in_keys=[(g, "info", "mask") for g in groups],
+                out_keys=[(g, "mask") for g in groups],
+                create_copy=True,
+            ),
+            RewardSum(
+                in_keys=[(g, "reward") for g in groups],
+                out_keys=[(g, "episode_reward") for g in groups],
+            ),
+        ),
+    )
+
+
+def _make_batched_env(densities: Sequence[float], overrides: dict[str, Any], scheme: str):
+    """One env per density in a SerialEnv (batch dim 0 indexes the density)."""
+    from torchrl.envs import SerialEnv
+
+    fns = [partial(make_env, {**overrides, "density": float(d)}, scheme) for d in densities]
+    return SerialEnv(len(fns), fns)
+
+
+# --------------------------------------------------------------------------------------------
+# Policy pieces
+class _ZeroAction(nn.Module):
+    """Zero accelerations, shaped like the mask ``(..., K)``."""
+
+    def forward(self, mask: torch.Tensor) -> torch.Tensor:
+        return torch.zeros_like(mask)
+
+
+class _Finalize(nn.Module):
+    """Clamp to [-3, 3] m/s^2 and zero padded columns (after exploration noise)."""
+
+    def forward(self, action: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return action.clamp(-ACTION_SCALE_MPS2, ACTION_SCALE_MPS2) * mask.to(action.dtype)
+
+
+def _finalize(group: str) -> TensorDictModule:
+    return TensorDictModule(
+        _Finalize(), in_keys=[(group, "action"), (group, "mask")], out_keys=[(group, "action")]
+    )
+
+
+def zero_policy(group: str) -> TensorDictModule:
+    """A fixed module writing zeros to ``(group, "action")``."""
+    return TensorDictModule(_ZeroAction(), in_keys=[(group, "mask")], out_keys=[(group, "action")])
+
+
+def freeze(module: nn.Module) -> nn.Module:
+    """Disable gradients of every parameter (in place) and switch to eval mode."""
+    for p in module.parameters():
+        p.requires_grad_(False)
+    return module.eval()
+
+
+def make_policy(
+    stage: str,
+    actor: TensorDictModule,
+    noise: nn.Module | None,
+    frozen_edge: TensorDictModule | None = None,
+) -> TensorDictSequential:
+    """The collection policy: trained actor (+ noise) and the other group's fixed actions."""
+    group = STAGES[stage]["group"]
+    mods: list[nn.Module] = []
+    if stage == "cloud":
+        if frozen_edge is None:
+            raise TrainingError("stage 'cloud' needs the frozen edge policy")
+        mods += [frozen_edge, _finalize("edge")]
+    mods.append(actor)
+    if noise is not None:
+        mods.append(noise)
+    mods.append(_finalize(group))
+    if stage == "edge":
+        mods.append(zero_policy("cloud"))
+    return TensorDictSequential(*mods)
+
+
+def load_frozen_edge_actor(path: str | Path) -> TensorDictModule:
+    """Load the stage-I edge actor, frozen (no grad, eval)."""
+    ckpt = load_checkpoint(path, expected_kind="edge")
+    actor = make_actor("edge", "edge")
+    actor.module.load_state_dict(ckpt["actor"])
+    freeze(actor)
+    return actor
+
+
+# --------------------------------------------------------------------------------------------
+def _buffer_keys(group: str) -> list:
+    return [
+        (group, "observation"),
+        (group, "mask"),
+        (group, "action"),
+        ("next", group, "observation"),
+        ("next", group, "mask"),
+        ("next", group, "reward"),
+        ("next", group, "done"),
+        ("next", group, "terminated"),
+    ]
+
+
+def _fmt_density(d: float) -> str:
+    return f"{d:g}"
+
+
+def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None) -> Path:
+    """Plot average travel velocity [m/s] vs frames, one line per density, from the CSV log."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    csv_path = Path(csv_path)
+    png_path = Path(png_path) if png_path else csv_path.with_suffix(".png")
+    with csv_path.open() as fh:
+        rows = list(csv.DictReader(fh))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    if rows:
+        frames = [float(r["frames"]) for r in rows]
+        vcols = [c for c in rows[0] if c.startswith("avg_velocity_mps_d")]
+        for c in vcols:
+            axes[0].plot(frames, [float(r[c]) for r in rows], label=f"{c[18:]} veh/lane/h")
+        axes[1].plot(frames, [float(r["critic_loss"]) for r in rows], label="critic loss")
+        axes[1].plot(frames, [float(r["actor_loss"]) for r in rows], label="actor loss")
+    axes[0].set_xlabel("environment frames [steps]")
+    axes[0].set_ylabel("average travel velocity [m/s]")
+    axes[0].set_title("learning curve (running episode value)")
+    axes[0].legend(title="density")
+    axes[1].set_xlabel("environment frames [steps]")
+    axes[1].set_ylabel("loss [-]")
+    axes[1].set_yscale("symlog")
+    axes[1].legend()
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=100)
+    plt.close(fig)
+    return png_path
+
+
+def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, workers, ray_address):
+    from torchrl.collectors import Collector, MultiSyncCollector
+
+    if ray_address is not None:
+        try:
+            import ray  # noqa: F401
+        except ImportError as exc:
+            raise TrainingError(
+                "ray_address needs ray: install it with `pip install mivecc[ray]`"
+            ) from exc
+        from torchrl.collectors.distributed import RayCollector
+
+        return RayCollector(
+            [env_fn] * max(1, workers),
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=total_frames,
+            ray_init_config={"address": ray_address},
+            sync=True,
+        )
+    if workers > 1:
+        return MultiSyncCollector(
+            [env_fn] * workers,
+            policy,
+            frames_per_batch=frames_per_batch,
+            total_frames=total_frames,
+        )
+    return Collector(
+        env_fn,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=total_frames,
+        auto_register_policy_transforms=False,
+    )
+
+
+def train(
+    stage: str = "edge",
+    preset: str | TrainPreset = DEFAULT_PRESET,
+    frames: int | None = None,
+    rows: int = 1,
+    cols: int = 1,
+    densities: float | Sequence[float] = 1500.0,
+    seed: int = 0,
+    out_dir: str | Path = "runs/train",
+    resume: str | Path | None = None,
+    workers: int = 1,
+    ray_address: str | None = None,
+    progress: bool = True,
+    *,
+    edge_checkpoint: str | Path | None = None,
+    config_overrides: dict[str, Any] | None = None,
+    episode_steps: int | None = None,
+    buffer_size: int | None = None,
+    save_every: int = 50,
+) -> Path:
+    """Train one stage and return the path of the final checkpoint.
+
+    Args:
+        stage: ``"edge"`` (stage I, scheme EE) or ``"cloud"`` (stage II, scheme EEC).
+        preset: Preset name or :class:`TrainPreset`.
+        frames: Total env steps (summed over the density envs); default 50 episodes.
+        rows, cols: Grid size.
+        densities: One or several arrival densities [veh/lane/h], trained in parallel envs.
+        seed: Seed of torch and the envs.
+        out_dir: Output folder (``train_log.csv``, ``learning_curve.png``, ``<stage>.pt``).
+        resume: Checkpoint of this stage to continue from (frames count continues).
+        workers: Collector processes (``MultiSyncCollector`` when > 1).
+        ray_address: Ray cluster address (``RayCollector``; needs ``pip install mivecc[ray]``).
+        progress: Show a tqdm progress bar.
+        edge_checkpoint: Stage II: the stage-I checkpoint (default: shipped pretrained edge).
+        config_overrides: Extra env config fields.
+        episode_steps: Steps per episode (default: the preset's).
+        buffer_size: Replay capacity override [transitions].
+        save_every: Save a checkpoint every this many iterations.
+
+    Returns:
+        Path of the checkpoint written at the end.
+    """
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+    from torchrl.modules import AdditiveGaussianModule
+    from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
+    from tqdm.auto import tqdm
+
+    if stage not in STAGES:
+        raise TrainingError(f"unknown stage {stage!r}; expected 'edge' or 'cloud'")
+    p = get_preset(preset)
+    if buffer_size is not None:
+        p = p.replace(buffer_size=int(buffer_size))
+    if episode_steps is not None:
+        p = p.replace(episode_steps=int(episode_steps))
+    group = STAGES[stage]["group"]
+    scheme = STAGES[stage]["scheme"]
+    dens = (
+        [float(densities)] if isinstance(densities, (int, float)) else [float(d) for d in densities]
+    )
+    if not dens:
+        raise TrainingError("at least one density is needed")
+    overrides = {
+        **(config_overrides or {}),
+        "rows": rows,
+        "cols": cols,
+        "max_steps": p.episode_steps,
+    }
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    total_frames = int(frames) if frames is not None else 50 * p.episode_steps * len(dens)
+    fpb = p.frames_per_batch * len(dens)
+    torch.manual_seed(seed)
+
+    # --- networks, loss, optimiser ------------------------------------------------------
+    actor = make_actor(group, group)
+    critic = make_critic(group, group)
+    frozen_edge = None
+    edge_ckpt_path = None
+    if stage == "cloud":
+        if edge_checkpoint is None:
+            from mivecc_agents.policies import pretrained_path
+
+            edge_checkpoint = pretrained_path("edge")
+            if edge_checkpoint is None:
+                raise TrainingError(
+                    "stage 'cloud' needs a stage-I edge checkpoint (edge_checkpoint=...)"
+                )
+        edge_ckpt_path = str(edge_checkpoint)
+        frozen_edge = load_frozen_edge_actor(edge_checkpoint)
+
+    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
+    loss.set_keys(
+        state_action_value=(group, "state_action_value"),
+        reward=(group, "reward"),
+        done=(group, "done"),
+        terminated=(group, "terminated"),
+        priority=(group, "td_error"),
+    )
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=p.gamma)
+    updater = SoftUpdate(loss, tau=p.tau)
+    actor_params = list(actor.parameters())
+    critic_params = list(critic.parameters())
+    optim = torch.optim.Adam(
+        [{"params": actor_params, "lr": p.lr_actor}, {"params": critic_params, "lr": p.lr_critic}]
+    )
+    state = {"frames": 0, "updates": 0, "iteration": 0}
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        optim, lambda _: max(0.0, 1.0 - state["frames"] / max(total_frames, 1))
+    )
+
+    if resume is not None:
+        ck = load_checkpoint(resume, expected_kind=group)
+        if ck["stage"] != stage:
+            raise CheckpointError(f"{resume}: is a {ck['stage']!r}-stage checkpoint, not {stage!r}")
+        loss.load_state_dict(ck["loss"])
+        optim.load_state_dict(ck["optimizer"])
+        state.update(
+            frames=int(ck["frames"]),
+            updates=int(ck["updates"]),
+            iteration=int(ck.get("metrics", {}).get("iteration", 0)),
+        )
+        sched.step()
+
+    # --- exploration policy, env, collector ----------------------------------------------
+    probe = make_env({**overrides, "density": dens[0]}, scheme)
+    action_spec = probe.full_action_spec[(group, "action")]
+    probe.close()
+    noise = AdditiveGaussianModule(
+        spec=action_spec,
+        sigma_init=p.sigma_init,
+        sigma_end=p.sigma_end,
+        annealing_num_steps=max(1, int(p.sigma_anneal_fraction * total_frames)),
+        action_key=(group, "action"),
+    )
+    if state["frames"]:
+        noise.step(state["frames"])
+    policy = make_policy(stage, actor, noise, frozen_edge)
+    remaining = max(0, total_frames - state["frames"])
+    env_fn = partial(_make_batched_env, dens, overrides, scheme)
+
+    # --- replay buffer, sized on purpose ---------------------------------------------------
+    keys = _buffer_keys(group)
+    probe_td = env_fn()
+    sample = probe_td.rollout(1, policy)
+    probe_td.close()
+    per_transition = sum(
+        t.numel() * t.element_size() for t in sample.select(*keys).reshape(-1)[0].values(True, True)
+    )
+    cap_mem = int(p.buffer_memory_mb * 2**20 // max(per_transition, 1))
+    capacity = max(p.batch_size, min(p.buffer_size, cap_mem))
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity), batch_size=p.batch_size)
+
+    csv_path = out_dir / "train_log.csv"
+    fields = [
+        "iteration",
+        "frames",
+        "episodes",
+        "reward_mean",
+        "episode_reward",
+        "avg_velocity_mps",
+        *[f"avg_velocity_mps_d{_fmt_density(d)}" for d in dens],
+        "collisions",
+        "critic_loss",
+        "actor_loss",
+        "q_mean",
+        "lr_actor",
+        "lr_critic",
+        "sigma",
+        "updates",
+        "fps_collect",
+        "fps_optim",
+        "buffer",
+        "wall_s",
+    ]
+    write_header = not (resume is not None and csv_path.exists())
+    fh = csv_path.open("w" if write_header else "a", newline="")
+    writer = csv.DictWriter(fh, fieldnames=fields)
+    if write_header:
+        writer.writeheader()
+
+    ckpt_path = out_dir / f"{stage}.pt"
+    meta = {
+        "stage": stage,
+        "kind": group,
+        "grid_size": int(actor.module.spec.grid_size),
+        "preset": p.to_dict(),
+        "config": _config_dict(overrides, scheme, dens),
+        "extra": {
+            "edge_checkpoint": edge_ckpt_path,
+            "densities": dens,
+            "seed": seed,
+            "buffer_capacity": capacity,
+            "bytes_per_transition": per_transition,
+        },
+    }
+
+    def _save(metrics: dict[str, float], path: Path = ckpt_path) -> Path:
+        return save_checkpoint(
+            path,
+            {
+                **meta,
+                "actor": actor.module.state_dict(),
+                "critic": critic.module.state_dict(),
+                "loss": loss.state_dict(),
+                "optimizer": optim.state_dict(),
+                "frames": state["frames"],
+                "updates": state["updates"],
+                "metrics": {**metrics, "iteration": state["iteration"]},
+            },
+        )
+
+    metrics: dict[str, float] = {}
+    episodes = 0
+    t0 = time.perf_counter()
+    bar = tqdm(
+        total=total_frames,
+        initial=state["frames"],
+        disable=not progress,
+        desc=f"train {stage}",
+        unit="frame",
+    )
+    if remaining > 0:
+        collector = _make_collector(env_fn, policy, fpb, remaining, workers, ray_address)
+        collector.set_seed(seed + state["frames"])
+        try:
+            t_last = time.perf_counter()
+            for data in collector:
+                t_col = time.perf_counter() - t_last
+                n = data.numel()
+                state["frames"] += n
+                state["iteration"] += 1
+                buffer.extend(data.select(*keys).reshape(-1))
+                noise.step(n)
+                # --- optimisation
+                t1 = time.perf_counter()
+                n_upd = 0
+                cl, al, qm = [], [], []
+                if len(buffer) >= max(p.warmup_frames, p.batch_size):
+                    n_upd = max(1, round(p.updates_per_frame * n))
+                    for _ in range(n_upd):
+                        batch = buffer.sample()
+                        out = loss(batch)
+                        total = out["loss_actor"] + out["loss_value"]
+                        optim.zero_grad(set_to_none=True)
+                        total.backward()
+                        if p.max_grad_norm is not None:
+                            nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm)
+                            nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm)
+                        optim.step()
+                        updater.step()
+                        cl.append(out["loss_value"].detach())
+                        al.append(out["loss_actor"].detach())
+                        qm.append(out["pred_value"].detach().mean())
+                    state["updates"] += n_upd
+                t_opt = time.perf_counter() - t1
+                sched.step()
+                if workers > 1 or ray_address is not None:
+                    collector.update_policy_weights_()
+                metrics = _metrics(
+                    data,
+                    group,
+                    dens,
+                    state,
+                    episodes,
+                    cl,
+                    al,
+                    qm,
+                    optim,
+                    noise,
+                    n,
+                    n_upd,
+                    t_col,
+                    t_opt,
+                    len(buffer),
+                    time.perf_counter() - t0,
+                    p.batch_size,
+                )
+                episodes = int(metrics["episodes"])
+                writer.writerow(metrics)
+                fh.flush()
+                bar.update(n)
+                bar.set_postfix(
+                    v=f"{metrics['avg_velocity_mps']:.2f}", qloss=f"{metrics['critic_loss']:.3g}"
+                )
+                if save_every and state["iteration"] % save_every == 0:
+                    _save(metrics)
+                t_last = time.perf_counter()
+        finally:
+            collector.shutdown()
+            bar.close()
+            fh.close()
+    else:
+        bar.close()
+        fh.close()
+    path = _save(metrics)
+    plot_learning_curve(csv_path, out_dir / "learning_curve.png")
+    return path
+
+
+def _config_dict(overrides: dict[str, Any], scheme: str, dens: list[float]) -> dict[str, Any]:
+    from mivecc_env.config import from_overrides
+
+    return from_overrides(None, **{**overrides, "scheme": scheme, "density": dens[0]}).to_dict()
+
+
+def _mean(xs: list[torch.Tensor]) -> float:
+    return float(torch.stack(xs).mean()) if xs else math.nan
+
+
+def _metrics(
+    data: TensorDictBase,
+    group,
+    dens,
+    state,
+    episodes,
+    cl,
+    al,
+    qm,
+    optim,
+    noise,
+    n,
+    n_upd,
+    t_col,
+    t_opt,
+    buf_len,
+    wall,
+    batch_size,
+) -> dict[str, float]:
+    """One CSV row. ``data`` has batch dims ``(n_densities, T)`` (or flattened by workers)."""
+    nxt = data["next"]
+    reward = nxt[group, "reward"]
+    done = nxt["done"].reshape(-1)
+    vel = nxt[group, "info", "avg_travel_velocity_mps"]  # (..., n_agents)
+    coll = nxt[group, "info", "collisions"]
+    row: dict[str, float] = {
+        "iteration": state["iteration"],
+        "frames": state["frames"],
+        "episodes": episodes + int(done.sum()),
+        "reward_mean": float(reward.mean()),
+        "episode_reward": math.nan,
+        "collisions": float(coll.reshape(-1, coll.shape[-1])[:, 0].max()),
+        "critic_loss": _mean(cl),
+        "actor_loss": _mean(al),
+        "q_mean": _mean(qm),
+        "lr_actor": optim.param_groups[0]["lr"],
+        "lr_critic": optim.param_groups[1]["lr"],
+        "sigma": float(noise.sigma),
+        "updates": n_upd,
+        "fps_collect": n / max(t_col, 1e-9),
+        "fps_optim": n_upd * batch_size / max(t_opt, 1e-9) if n_upd else math.nan,
+        "buffer": buf_len,
+        "wall_s": wall,
+    }
+    # per density: the running episode value at the last step of the batch
+    if vel.ndim >= 3 and vel.shape[0] == len(dens):
+        last = vel[:, -1, 0]
+        for i, d in enumerate(dens):
+            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(last[i])
+    else:
+        v = float(vel.reshape(-1, vel.shape[-1])[-1, 0])
+        for d in dens:
+            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = v
+    row["avg_velocity_mps"] = sum(row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in dens) / len(
+        dens
+    )
+    if done.any():
+        ep = nxt[group, "episode_reward"]  # (..., n_agents, 1), summed by RewardSum
+        ep = ep.reshape(done.shape[0], -1)[done]
+        row["episode_reward"] = float(ep.mean())
+    return row

@@ -1,0 +1,99 @@
+"""Checkpoint validation: clear CheckpointError instead of deep torch errors."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mivecc_agents.networks import make_actor_net, make_critic_net
+from mivecc_agents.policies import load_policy, pretrained_path
+
+
+def _payload(kind="edge"):
+    return {
+        "stage": kind,
+        "kind": kind,
+        "grid_size": 15 if kind == "edge" else 60,
+        "actor": make_actor_net(kind).state_dict(),
+        "critic": make_critic_net(kind).state_dict(),
+        "frames": 0,
+        "updates": 0,
+        "metrics": {},
+        "config": {},
+        "preset": {},
+    }
+
+
+@pytest.fixture
+def ckpt(tmp_path):
+    return save_checkpoint(tmp_path / "edge.pt", _payload())
+
+
+def test_roundtrip(ckpt):
+    data = load_checkpoint(ckpt, expected_kind="edge")
+    assert data["format_version"] == 1 and data["env_version"] == "mivecc_v0"
+    assert not list(ckpt.parent.glob("*.tmp"))
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(CheckpointError, match="no such"):
+        load_checkpoint(tmp_path / "nope.pt")
+
+
+def test_corrupt_file(tmp_path):
+    p = tmp_path / "bad.pt"
+    p.write_bytes(b"this is not a checkpoint at all")
+    with pytest.raises(CheckpointError, match="corrupt or truncated"):
+        load_checkpoint(p)
+
+
+def test_truncated_file(ckpt, tmp_path):
+    data = ckpt.read_bytes()
+    p = tmp_path / "trunc.pt"
+    p.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CheckpointError):
+        load_checkpoint(p)
+    with pytest.raises(CheckpointError):
+        load_policy(p)
+
+
+def test_not_mivecc(tmp_path):
+    p = tmp_path / "other.pt"
+    torch.save({"state_dict": {}}, p)
+    with pytest.raises(CheckpointError, match="not a mivecc checkpoint"):
+        load_checkpoint(p)
+
+
+def test_wrong_kind(ckpt):
+    with pytest.raises(CheckpointError, match="'cloud' policy is needed"):
+        load_checkpoint(ckpt, expected_kind="cloud")
+    with pytest.raises(CheckpointError):
+        load_policy(ckpt, expected_kind="cloud")
+
+
+def test_k_mismatch_and_version(tmp_path):
+    bad = _payload()
+    bad["grid_size"] = 20
+    p = save_checkpoint(tmp_path / "k.pt", bad)
+    with pytest.raises(CheckpointError, match="K mismatch"):
+        load_checkpoint(p)
+    data = torch.load(save_checkpoint(tmp_path / "v.pt", _payload()), weights_only=True)
+    data["format_version"] = 99
+    torch.save(data, tmp_path / "v.pt")
+    with pytest.raises(CheckpointError, match="newer"):
+        load_checkpoint(tmp_path / "v.pt")
+
+
+def test_weights_do_not_fit(tmp_path):
+    bad = _payload()
+    bad["actor"] = make_actor_net("cloud").state_dict()
+    p = save_checkpoint(tmp_path / "w.pt", bad)
+    with pytest.raises(CheckpointError, match="do not fit"):
+        load_policy(p)
+
+
+def test_pretrained_path_is_path_or_none():
+    for kind in ("edge", "cloud"):
+        p = pretrained_path(kind)
+        assert p is None or p.is_file()

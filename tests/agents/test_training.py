@@ -1,0 +1,187 @@
+"""Short end-to-end TorchRL training runs of both stages (1x1 grid, tiny buffers)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("torchrl")
+
+from mivecc_agents.checkpoints import load_checkpoint
+from mivecc_agents.policies import load_policy
+from mivecc_agents.presets import PRESETS, get_preset
+from mivecc_agents.training import make_env, train
+
+TINY = get_preset("stable").replace(
+    name="tiny",
+    frames_per_batch=50,
+    warmup_frames=48,
+    updates_per_frame=0.1,
+    episode_steps=120,
+    buffer_size=500,
+)
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+@pytest.fixture(scope="module")
+def edge_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("edge")
+    torch.manual_seed(0)
+    from mivecc_agents.networks import make_actor, make_critic
+
+    torch.manual_seed(0)
+    init_actor = make_actor("edge", "edge").module.state_dict()
+    init_critic = make_critic("edge", "edge").module.state_dict()
+    path = train(
+        "edge",
+        TINY,
+        frames=200,
+        rows=1,
+        cols=1,
+        densities=1500,
+        seed=0,
+        out_dir=out,
+        progress=False,
+    )
+    return path, out, init_actor, init_critic
+
+
+def test_env_has_mask_at_root_and_next():
+    from torchrl.envs import check_env_specs
+
+    env = make_env({"rows": 1, "cols": 1, "density": 1500, "max_steps": 20}, "EE")
+    check_env_specs(env)
+    td = env.rollout(3)
+    assert td["edge", "mask"].shape == (3, 1, 15)
+    assert td["next", "cloud", "mask"].shape == (3, 1, 60)
+
+
+def test_edge_stage_trains(edge_run):
+    path, out, init_actor, init_critic = edge_run
+    ck = load_checkpoint(path, expected_kind="edge")
+    assert ck["stage"] == "edge" and ck["frames"] == 200 and ck["updates"] > 0
+    # seed 0 gives the same initial networks as the fixture's snapshot
+    assert any(not torch.equal(v, ck["actor"][k]) for k, v in init_actor.items())
+    assert any(not torch.equal(v, ck["critic"][k]) for k, v in init_critic.items())
+    assert math.isfinite(ck["metrics"]["critic_loss"])
+    assert math.isfinite(ck["metrics"]["actor_loss"])
+    assert (out / "train_log.csv").is_file() and (out / "learning_curve.png").is_file()
+    header = (out / "train_log.csv").read_text().splitlines()[0]
+    for col in (
+        "frames",
+        "critic_loss",
+        "actor_loss",
+        "lr_actor",
+        "fps_collect",
+        "fps_optim",
+        "avg_velocity_mps_d1500",
+        "reward_mean",
+    ):
+        assert col in header
+
+
+def test_checkpoint_roundtrip_actions(edge_run):
+    path = edge_run[0]
+    pol1, pol2 = load_policy(path), load_policy(path, expected_kind="edge")
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(-1, 1, (3, 15, 15, 3)).astype(np.float32)
+    mask = (rng.random((3, 15)) < 0.6).astype(np.float32)
+    a1, a2 = pol1(obs, mask), pol2(obs, mask)
+    np.testing.assert_array_equal(a1, a2)
+    assert a1.shape == (3, 15) and a1.dtype == np.float32
+    assert np.all(np.abs(a1) <= 3) and np.all(a1[mask == 0] == 0)
+    # same actions as the training actor rebuilt from the checkpoint
+    from mivecc_agents.networks import make_actor_net
+
+    net = make_actor_net("edge")
+    net.load_state_dict(load_checkpoint(path)["actor"])
+    with torch.no_grad():
+        ref = net(torch.as_tensor(obs), torch.as_tensor(mask)).numpy()
+    np.testing.assert_array_equal(a1, ref)
+
+
+def test_resume_continues_frames(edge_run, tmp_path):
+    path = edge_run[0]
+    new = train(
+        "edge",
+        TINY,
+        frames=300,
+        rows=1,
+        cols=1,
+        densities=1500,
+        seed=1,
+        out_dir=tmp_path,
+        resume=path,
+        progress=False,
+    )
+    ck = load_checkpoint(new)
+    assert ck["frames"] == 300
+    assert ck["updates"] > load_checkpoint(path)["updates"]
+
+
+def test_cloud_stage_keeps_edge_frozen(edge_run, tmp_path):
+    edge_path = edge_run[0]
+    edge_before = load_checkpoint(edge_path)["actor"]
+    from mivecc_agents.networks import make_actor
+
+    torch.manual_seed(3)
+    init_actor = make_actor("cloud", "cloud").module.state_dict()
+    tiny = TINY.replace(
+        frames_per_batch=40, warmup_frames=48, updates_per_frame=0.05, buffer_size=200
+    )
+    path = train(
+        "cloud",
+        tiny,
+        frames=120,
+        rows=1,
+        cols=1,
+        densities=1500,
+        seed=3,
+        out_dir=tmp_path,
+        edge_checkpoint=edge_path,
+        progress=False,
+    )
+    ck = load_checkpoint(path, expected_kind="cloud")
+    assert ck["stage"] == "cloud" and ck["updates"] > 0
+    assert ck["config"]["scheme"] == "EEC"
+    assert any(not torch.equal(v, ck["actor"][k]) for k, v in init_actor.items())
+    assert math.isfinite(ck["metrics"]["critic_loss"])
+    edge_after = load_checkpoint(edge_path)["actor"]
+    for k, v in edge_before.items():
+        assert torch.equal(v, edge_after[k])
+
+
+def test_frozen_edge_module_gets_no_gradient(edge_run):
+    from mivecc_agents.training import load_frozen_edge_actor
+
+    actor = load_frozen_edge_actor(edge_run[0])
+    assert all(not p.requires_grad for p in actor.parameters())
+
+
+def test_presets_and_errors(tmp_path):
+    assert PRESETS["paper"].lr_critic == 0.05 and PRESETS["paper"].gamma == 0.8
+    assert PRESETS["paper"].batch_size == 48 and PRESETS["paper"].tau == 0.01
+    with pytest.raises(ValueError):
+        get_preset("nope")
+    from mivecc_agents.training import TrainingError
+
+    with pytest.raises(TrainingError):
+        train("bogus", TINY, frames=10, out_dir=tmp_path, progress=False)
+    with pytest.raises(TrainingError, match=r"mivecc\[ray\]"):
+        try:
+            import ray  # noqa: F401
+
+            pytest.skip("ray installed")
+        except ImportError:
+            pass
+        train("edge", TINY, frames=50, out_dir=tmp_path, ray_address="auto", progress=False)
