@@ -218,6 +218,26 @@ def cmd_fields(args: argparse.Namespace) -> int:
 COMMANDS: list[Callable[[Any], argparse.ArgumentParser]] = [add_evaluate_parser, add_fields_parser]
 
 
+def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """``mivecc train``: two-stage DDPG training (see :mod:`mivecc_agents.training`)."""
+    from mivecc_agents.presets import add_train_arguments
+
+    p = subparsers.add_parser("train", help="train the edge (stage I) or cloud (stage II) policy")
+    add_train_arguments(p)
+    p.set_defaults(func=cmd_train)
+    return p
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Run ``mivecc train`` (imports torch only now)."""
+    from mivecc_agents.training import train_from_args
+
+    return train_from_args(args)
+
+
+COMMANDS.append(add_train_parser)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
     parser = argparse.ArgumentParser(

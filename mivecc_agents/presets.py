@@ -13,7 +13,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["DEFAULT_PRESET", "PRESETS", "TrainPreset", "get_preset"]
+__all__ = ["DEFAULT_PRESET", "PRESETS", "TrainPreset", "add_train_arguments", "get_preset"]
 
 
 @dataclass(frozen=True)
@@ -86,3 +86,33 @@ def get_preset(name: str | TrainPreset) -> TrainPreset:
         return PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)}") from None
+
+
+def add_train_arguments(parser: Any) -> None:
+    """Options of ``mivecc train`` (kept here so that ``mivecc --help`` imports no torch)."""
+    parser.add_argument("--stage", choices=("edge", "cloud"), default="edge",
+                        help="edge: stage I (scheme EE); cloud: stage II (scheme EEC, edge frozen)")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default=DEFAULT_PRESET,
+                        help=f"hyper-parameters (default {DEFAULT_PRESET})")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="total env steps (default: 50 episodes per density)")
+    parser.add_argument("--episode-steps", type=int, default=None,
+                        help="steps per episode (default: the preset's, 3000 = 300 s)")
+    parser.add_argument("--rows", type=int, default=None, help="grid rows (edge 1, cloud 3)")
+    parser.add_argument("--cols", type=int, default=None, help="grid cols (edge 1, cloud 3)")
+    parser.add_argument("--density", type=float, nargs="+", default=[1500.0],
+                        help="training densities [veh/lane/h], one env each (default 1500)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default="runs/train", help="output folder (default runs/train)")
+    parser.add_argument("--resume", default=None, help="checkpoint of this stage to continue")
+    parser.add_argument("--edge-checkpoint", default=None,
+                        help="stage II: stage-I checkpoint (default: shipped pretrained edge)")
+    parser.add_argument("--buffer-size", type=int, default=None, help="replay capacity")
+    parser.add_argument("--workers", type=int, default=1,
+                        help="collector processes (MultiSyncCollector when > 1)")
+    parser.add_argument("--ray-address", default=None,
+                        help="ray cluster address (RayCollector; pip install mivecc[ray])")
+    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+",
+                        action="extend", default=[], help="other env config fields")

@@ -631,3 +631,30 @@ def _metrics(
         ep = ep.reshape(done.shape[0], -1)[done]
         row["episode_reward"] = float(ep.mean())
     return row
+
+
+# --------------------------------------------------------------------------------------------
+# Command line (``mivecc train``)
+def train_from_args(args) -> int:
+    """Run :func:`train` from parsed ``mivecc train`` options; returns the exit status."""
+    import sys
+
+    from mivecc_agents.cli import parse_set_items
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    default = 1 if args.stage == "edge" else 3
+    try:
+        path = train(
+            args.stage, args.preset, args.frames,
+            rows=args.rows or default, cols=args.cols or default, densities=args.density,
+            seed=args.seed, out_dir=args.out, resume=args.resume, workers=args.workers,
+            ray_address=args.ray_address, progress=not args.no_progress,
+            edge_checkpoint=args.edge_checkpoint, config_overrides=parse_set_items(args.set_items),
+            episode_steps=args.episode_steps, buffer_size=args.buffer_size,
+        )
+    except (TrainingError, CheckpointError) as exc:
+        print(f"mivecc train: error: {exc}", file=sys.stderr)
+        return 2
+    print(path)
+    return 0
