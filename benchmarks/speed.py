@@ -361,6 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from tqdm.auto import tqdm
 
     results = []
+    load_before = os.getloadavg() if hasattr(os, "getloadavg") else None
     t_start = time.perf_counter()
     with tqdm(jobs, unit="run", file=sys.stderr, disable=args.no_progress) as bar:
         for label, job in bar:
@@ -383,6 +384,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             "env": not args.no_env,
         },
         "wall_s": time.perf_counter() - t_start,
+        # 1/5/15-minute load averages: other processes on the machine disturb the timings.
+        "loadavg_before": load_before,
+        "loadavg_after": os.getloadavg() if hasattr(os, "getloadavg") else None,
         "results": results,
         "ratios": ratio_rows,
         "floors": floor,
