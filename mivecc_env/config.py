@@ -72,8 +72,10 @@ class MiVeCCConfig:
     """All constants of the MiVeCC model, with the paper's values as defaults.
 
     Units are in the field names: ``_m`` metres, ``_s`` seconds, ``_mps`` m/s, ``_mps2`` m/s^2,
-    ``_vplh`` vehicles per lane per hour. Construct with keywords; an unknown keyword or a value
-    out of range raises :class:`ConfigError` naming the field and its allowed range.
+    ``_vplh`` vehicles per lane per hour. A value out of range raises :class:`ConfigError` naming
+    the field and its allowed range; integral floats for integer fields are converted. An
+    unknown keyword raises ``TypeError`` here (as for any Python call); :func:`from_overrides`,
+    :meth:`replace` and the environments raise :class:`ConfigError` with a suggestion instead.
     """
 
     # --- road network -------------------------------------------------------------------
@@ -188,6 +190,10 @@ class MiVeCCConfig:
     idm_min_gap_m: float = _num(2.0, 0.0, 50.0, "IDM jam distance (bumper to bumper)")
     idm_comfort_decel_mps2: float = _num(2.0, 0.1, 10.0, "IDM comfortable deceleration b")
     idm_delta: float = _num(4.0, 1.0, 10.0, "IDM acceleration exponent")
+    idm_max_decel_mps2: float = _num(
+        9.0, 0.1, 20.0, "emergency braking limit under signals (a red light may need more than "
+        "the unsignalized bound a_max)"
+    )
 
     # --- episode and reward -------------------------------------------------------------
     max_steps: int = _int(3000, 1, 10_000_000, "truncation: steps per episode")
@@ -204,7 +210,11 @@ class MiVeCCConfig:
     # ------------------------------------------------------------------------------------
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            _check_field(f, getattr(self, f.name))
+            value = getattr(self, f.name)
+            _check_field(f, value)
+            rng = f.metadata.get("range")
+            if rng is not None and rng.integer and isinstance(value, float):
+                object.__setattr__(self, f.name, int(value))
         self._check_relations()
 
     def _check_relations(self) -> None:

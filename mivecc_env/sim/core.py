@@ -65,8 +65,10 @@ class Simulator:
     Args:
         config: the model constants.
         batch_size: number of independent environments B.
-        seed: one seed for all (each environment ``b`` gets ``SeedSequence(seed).spawn``'s
-            ``b``-th child) or one seed per environment.
+        seed: one seed for all (environment ``b`` gets child ``b`` of
+            ``SeedSequence(seed).spawn(B)``, so environment 0 of a batch replays a B = 1 run with
+            the same seed) or one seed per environment (environment ``b`` replays a B = 1 run
+            seeded with ``seed[b]``).
         capacity: initial vehicle slots per environment (grows on demand).
     """
 
@@ -121,12 +123,13 @@ class Simulator:
     def _seed_sequences(self, seed: int | Sequence[int] | None) -> list[np.random.SeedSequence]:
         if seed is None or isinstance(seed, int | np.integer):
             root = np.random.SeedSequence(None if seed is None else int(seed))
-            return root.spawn(self.batch_size) if self.batch_size > 1 else [root]
+            return root.spawn(self.batch_size)
         seeds = list(seed)
         if len(seeds) != self.batch_size:
             raise ValueError(f"seed: need one seed per environment ({self.batch_size}), "
                              f"got {len(seeds)}")
-        return [np.random.SeedSequence(int(x)) for x in seeds]
+        # Environment b of a seed list runs exactly like a B = 1 simulator seeded with seeds[b].
+        return [np.random.SeedSequence(int(x)).spawn(1)[0] for x in seeds]
 
     def _no_events(self) -> StepEvents:
         zero = np.zeros(self.batch_size, dtype=np.int64)
@@ -308,7 +311,9 @@ class Simulator:
             return
         # A lane is blocked while any of its vehicles is closer than the clearance to its entry.
         blocked = np.zeros_like(want)
-        near = self.active & (self.s < c.entry_clearance_m)
+        clearance = (signals.entry_clearance_m(c) if c.control == "signalized"
+                     else c.entry_clearance_m)
+        near = self.active & (self.s < clearance)
         if near.any():
             bb, kk = np.nonzero(near)
             blocked[bb, self.lane[bb, kk]] = True

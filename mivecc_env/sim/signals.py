@@ -5,7 +5,9 @@ north-south green, yellow, all-red (cycle ``2 (green + yellow + all_red)``), shi
 ``signal_offset_s * (row + col)`` (a simple green wave; 0 by default). A vehicle treats a red
 head as a standing vehicle at the stop line; on yellow it stops if it can do so with the
 comfortable deceleration, else it goes on. Car-following is the Intelligent Driver Model (IDM)
-towards the nearer of the own-lane leader and a red stop line. Velocity floor is 0.
+towards the nearer of the own-lane leader and a red stop line, with braking limited to
+``idm_max_decel_mps2``. Velocity floor is 0. A vehicle enters only with room to stop behind a
+standing vehicle (:func:`entry_clearance_m`).
 """
 
 from __future__ import annotations
@@ -85,4 +87,11 @@ def signalized_accel(
     can_stop = dist >= v * v / (2.0 * c.idm_comfort_decel_mps2)
     stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
     a_line = idm_accel(v, np.where(stop, dist, np.inf), np.zeros_like(v), c)
-    return np.minimum(a, np.where(stop, a_line, np.inf))
+    a = np.minimum(a, np.where(stop, a_line, np.inf))
+    return np.clip(a, -c.idm_max_decel_mps2, c.a_max_mps2)
+
+
+def entry_clearance_m(config: MiVeCCConfig) -> float:
+    """Entry clearance under signals [m]: room to stop behind a standing vehicle."""
+    stop = config.v_init_mps**2 / (2.0 * config.idm_comfort_decel_mps2)
+    return max(config.entry_clearance_m, stop + config.idm_min_gap_m + config.vehicle_length_m)

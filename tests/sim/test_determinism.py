@@ -85,12 +85,6 @@ def test_batch_env_equals_single_run_with_its_spawned_seed() -> None:
         assert_same(env_state(batch, b), env_state(run(single, 500), 0))
 
 
-@pytest.mark.xfail(
-    reason="BUG (docstring/consistency): with an int seed a batch spawns child b for env b, "
-    "but a B=1 simulator uses the root SeedSequence itself, so a single run with seed s does "
-    "not reproduce env 0 of a batched run with seed s",
-    strict=True,
-)
 def test_single_run_reproduces_env0_of_a_batch() -> None:
     batch = run(Simulator(CFG, batch_size=2, seed=7), 300)
     single = run(Simulator(CFG, batch_size=1, seed=7), 300)
