@@ -2,10 +2,11 @@
 
 Runs the bare simulator (scheme E) on a grid for several densities, seeds and rule readings:
 
-* ``sensible``: nearest ahead -> SV/eta, nearest behind -> |SV/eta| (project default),
+* ``sensible``: nearest ahead -> SV/eta, nearest behind -> |SV/eta|,
 * ``literal``: Algorithm 3 as printed,
-* ``sensible+same_lane``: the sensible rule plus the released code's same-lane rule,
-* ``literal+same_lane``.
+* ``+same_lane``: plus the released code's same-lane rule,
+* ``acc=front`` / ``acc=ego``: SV_acc from the front vehicle's (paper) or the ego's own
+  (released code) acceleration.
 
 Writes ``rules_study.csv`` / ``rules_study.md`` under ``--out`` and prints the markdown table.
 
@@ -28,10 +29,16 @@ from mivecc_env.metrics import episode_summary
 from mivecc_env.sim.core import Simulator
 
 READINGS: dict[str, dict] = {
-    "sensible": {"end_rule": "sensible"},
-    "literal": {"end_rule": "literal"},
-    "sensible+same_lane": {"end_rule": "sensible", "same_lane_rule": True},
-    "literal+same_lane": {"end_rule": "literal", "same_lane_rule": True},
+    "sensible/acc=ego": {"end_rule": "sensible", "sv_acc_source": "ego"},
+    "sensible/acc=front": {"end_rule": "sensible", "sv_acc_source": "front"},
+    "literal/acc=ego": {"end_rule": "literal", "sv_acc_source": "ego"},
+    "literal/acc=front": {"end_rule": "literal", "sv_acc_source": "front"},
+    "sensible+same_lane/acc=ego": {
+        "end_rule": "sensible", "same_lane_rule": True, "sv_acc_source": "ego"
+    },
+    "sensible+same_lane/acc=front": {
+        "end_rule": "sensible", "same_lane_rule": True, "sv_acc_source": "front"
+    },
 }
 
 

@@ -126,8 +126,9 @@ class MiVeCCConfig:
     sv_min: float = _num(-20.0, -1000.0, 0.0, "lower clip of the safety value", hi_open=True)
     sv_max: float = _num(20.0, 0.0, 1000.0, "upper clip of the safety value", lo_open=True)
     sv_acc_source: AccSource = _choice(
-        "front", ("front", "ego"),
-        "whose acceleration SV_acc uses: the front vehicle's (paper) or the ego's (released code)",
+        "ego", ("ego", "front"),
+        "whose acceleration SV_acc uses: the ego's (released code, default: far fewer "
+        "collisions, see docs/model.md) or the front vehicle's (paper text)",
     )
 
     # --- virtual lanes, selection, density indicator ------------------------------------
