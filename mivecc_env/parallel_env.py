@@ -17,8 +17,9 @@ Observation spaces:
 
 Action spaces:
     ``Box(-a_max, a_max, (K,), float32)``: acceleration [m/s^2] of each column's vehicle.
-    Actions of padded columns are ignored. A wrong shape, a NaN/inf or a value outside the box
-    raises ``ValueError``.
+    Actions of padded columns are ignored; an agent left out of the action dict sends no action
+    (its vehicles follow the on-board rules). An unknown agent, a wrong shape, a NaN/inf or a
+    value outside the box raises ``ValueError`` naming the agent and the expected box.
 
 Rewards (named terms in ``infos[agent]``):
     ``edge_i``: ``reward_sv`` = ``reward_sv_weight`` x mean SV of its decision vehicles,
@@ -45,6 +46,7 @@ Version history:
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -53,7 +55,7 @@ from pettingzoo import ParallelEnv
 
 from mivecc_env import metrics
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
-from mivecc_env.sim.core import Simulator
+from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, edge_graphs
 from mivecc_env.sim.virtual_lane import density_indicator
 
@@ -66,7 +68,20 @@ def edge_agent(index: int) -> str:
 
 
 class MiVeCCParallelEnv(ParallelEnv):
-    """PettingZoo parallel environment of MiVeCC (see the module docstring)."""
+    """PettingZoo parallel environment of MiVeCC (see the module docstring).
+
+    Agents are ``edge_0 .. edge_{R*C-1}`` then ``cloud_0``; all of them act every step and all
+    leave together at truncation. ``reset`` must be called before ``step``.
+
+    Args:
+        config: a :class:`MiVeCCConfig`; keyword ``overrides`` replace its fields.
+        render_mode: ``None`` or ``"rgb_array"``.
+        **overrides: config fields (``density`` is accepted for ``density_vplh``).
+
+    Raises:
+        ConfigError: an unknown keyword, a value out of range, a ``config`` that is not a
+            :class:`MiVeCCConfig`, or an unsupported ``render_mode``.
+    """
 
     metadata = {
         "render_modes": ["rgb_array"],
@@ -91,11 +106,13 @@ class MiVeCCParallelEnv(ParallelEnv):
             )
         self.render_mode = render_mode
         self.sim = Simulator(self.config, batch_size=1, seed=0)
-        n = self.config.n_intersections
+        c = self.config
+        n = c.n_intersections
         self.edge_agents = [edge_agent(i) for i in range(n)]
         self.possible_agents = [*self.edge_agents, CLOUD_AGENT]
         self.agents: list[str] = []
-        c = self.config
+        self._possible = frozenset(self.possible_agents)
+        self._edge_index = {a: i for i, a in enumerate(self.edge_agents)}
         self._k = {a: c.k_edge for a in self.edge_agents} | {CLOUD_AGENT: c.k_cloud}
         self._obs_spaces = {
             a: spaces.Box(-1.0, 1.0, (k, k, 3), dtype=np.float32) for a, k in self._k.items()
@@ -104,47 +121,79 @@ class MiVeCCParallelEnv(ParallelEnv):
             a: spaces.Box(-c.a_max_mps2, c.a_max_mps2, (k,), dtype=np.float32)
             for a, k in self._k.items()
         }
+        # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
+        self._a_limit = c.a_max_mps2 + 1e-6
         self._seed_rng = np.random.default_rng()
         self._edge: StateGraphs | None = None
         self._cloud: StateGraphs | None = None
+        self._v_view: np.ndarray = np.zeros(0)
 
     # ------------------------------------------------------------------------------------
     def observation_space(self, agent: str) -> spaces.Box:
+        """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call)."""
         return self._obs_spaces[agent]
 
     def action_space(self, agent: str) -> spaces.Box:
+        """``Box(-a_max, a_max, (K,), float32)`` of ``agent`` (the same object on every call)."""
         return self._act_spaces[agent]
 
     @functools.cached_property
     def upper_bound_mps(self) -> float:
+        """Theoretical upper bound of the average travel velocity [m/s] of this config."""
         return metrics.upper_bound_velocity_mps(self.config)
 
     # ------------------------------------------------------------------------------------
     def reset(
         self, seed: int | None = None, options: dict | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+        """Empty the network and start a new episode.
+
+        Args:
+            seed: seeds this episode and the sequence of later unseeded resets.
+            options: unused (accepted for API compatibility).
+
+        Returns:
+            Observations and infos of every agent.
+        """
         if seed is not None:
             self._seed_rng = np.random.default_rng(seed)
         sim_seed = int(self._seed_rng.integers(0, 2**63 - 1))
         self.sim.reset(sim_seed)
         self.agents = list(self.possible_agents)
         self._observe()
-        zero = {a: 0.0 for a in self.possible_agents}
+        zero = np.zeros(len(self.possible_agents))
         return self._observations(), self._infos(zero, zero, zero)
 
-    def step(self, actions: dict[str, np.ndarray]) -> tuple[
+    def step(
+        self, actions: dict[str, np.ndarray]
+    ) -> tuple[
         dict[str, np.ndarray], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict]
     ]:
+        """Apply the coordinators' accelerations and advance the network by one time step.
+
+        Args:
+            actions: ``agent -> (K,)`` accelerations [m/s^2]; an agent left out sends no
+                action (its vehicles follow the on-board rules).
+
+        Returns:
+            ``(observations, rewards, terminations, truncations, infos)``, keyed by agent.
+
+        Raises:
+            RuntimeError: ``reset`` has not been called, or the episode has ended.
+            ValueError: an unknown agent, or an action of the wrong shape, not finite or
+                outside the action box.
+        """
         if not self.agents:
             raise RuntimeError("step: call reset() first (or again after the episode ended)")
         edge_cmd, cloud_cmd = self._commands(actions)
         events = self.sim.step(edge_cmd, cloud_cmd)
         self._observe()
         r_sv, r_vel, r_col = self._reward_terms(events)
-        rewards = {a: float(r_sv[a] + r_vel[a] + r_col[a]) for a in self.agents}
+        agents = self.agents
+        rewards = dict(zip(agents, (r_sv + r_vel + r_col).tolist(), strict=True))
         truncated = self.sim.step_count >= self.config.max_steps
-        terminations = {a: False for a in self.agents}
-        truncations = {a: truncated for a in self.agents}
+        terminations = dict.fromkeys(agents, False)
+        truncations = dict.fromkeys(agents, truncated)
         obs, infos = self._observations(), self._infos(r_sv, r_vel, r_col)
         if truncated:
             self.agents = []
@@ -152,40 +201,75 @@ class MiVeCCParallelEnv(ParallelEnv):
 
     # ------------------------------------------------------------------------------------
     def _commands(self, actions: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        unknown = set(actions) - set(self.possible_agents)
-        if unknown:
-            raise ValueError(f"actions: unknown agents {sorted(unknown)}; "
-                             f"agents are {self.possible_agents}")
+        """Per-slot edge and cloud commands (NaN where none) from the agents' actions."""
+        if not isinstance(actions, Mapping):
+            raise ValueError(
+                f"actions: expected a dict agent -> (K,) array, got {type(actions).__name__}"
+            )
+        if not self._possible.issuperset(actions):
+            unknown = sorted(map(str, set(actions) - self._possible))
+            raise ValueError(
+                f"actions: unknown agents {unknown}; agents are {self.possible_agents}"
+            )
         shape = self.sim.active.shape
         edge_cmd = np.full(shape, np.nan)
         cloud_cmd = np.full(shape, np.nan)
-        for agent, act in actions.items():
-            act = self._check_action(agent, act)
-            graphs, node = (
-                (self._cloud, 0) if agent == CLOUD_AGENT else (self._edge, int(agent[5:]))
-            )
-            slots = graphs.slot[0, node]
+        edges = [a for a in actions if a != CLOUD_AGENT]
+        if edges:
+            acts = self._checked_batch(edges, actions)
+            slots = self._edge.slot[0][[self._edge_index[a] for a in edges]]
             real = slots >= 0
-            target = cloud_cmd if agent == CLOUD_AGENT else edge_cmd
-            target.ravel()[slots[real]] = act[real]
+            edge_cmd.ravel()[slots[real]] = acts[real]
+        if CLOUD_AGENT in actions:
+            act = self._check_action(CLOUD_AGENT, actions[CLOUD_AGENT])
+            slots = self._cloud.slot[0, 0]
+            real = slots >= 0
+            cloud_cmd.ravel()[slots[real]] = act[real]
         return edge_cmd, cloud_cmd
 
+    def _checked_batch(self, agents: list[str], actions: Mapping[str, Any]) -> np.ndarray:
+        """(len(agents), K_edge) float64 actions of edge agents, validated as one array.
+
+        The fast path converts and checks all of them at once; on any problem each action is
+        checked on its own so that the error names the offending agent.
+        """
+        try:
+            acts = np.asarray([actions[a] for a in agents], dtype=np.float64)
+        except (ValueError, TypeError):
+            acts = None
+        if (
+            acts is None
+            or acts.shape != (len(agents), self.config.k_edge)
+            # NaN compares False, so this also rejects NaN and inf.
+            or not (np.abs(acts) <= self._a_limit).all()
+        ):
+            acts = np.stack([self._check_action(a, actions[a]) for a in agents])
+        return acts
+
     def _check_action(self, agent: str, action: Any) -> np.ndarray:
+        """``action`` as a float64 array, or ``ValueError`` naming the agent and the box."""
         space = self._act_spaces[agent]
-        arr = np.asarray(action, dtype=np.float64)
-        if arr.shape != space.shape:
-            raise ValueError(f"actions[{agent!r}]: expected shape {space.shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"actions[{agent!r}]: contains NaN or inf")
         lim = self.config.a_max_mps2
-        if np.any(np.abs(arr) > lim + 1e-6):
+        expected = f"expected shape {space.shape} with values in [{-lim}, {lim}] m/s^2"
+        try:
+            arr = np.asarray(action, dtype=np.float64)
+        except (ValueError, TypeError) as err:
             raise ValueError(
-                f"actions[{agent!r}]: accelerations must be in [{-lim}, {lim}] m/s^2, got "
-                f"min {arr.min():.3f} max {arr.max():.3f} (clip exploration noise to the box)"
-            )
-        return arr
+                f"actions[{agent!r}]: {expected}, got non-numeric {type(action).__name__}"
+            ) from err
+        if arr.shape == space.shape and (np.abs(arr) <= self._a_limit).all():
+            return arr
+        if arr.shape != space.shape:
+            raise ValueError(f"actions[{agent!r}]: {expected}, got shape {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"actions[{agent!r}]: {expected}, got NaN or inf")
+        raise ValueError(
+            f"actions[{agent!r}]: {expected}, got min {arr.min():.3f} max {arr.max():.3f} "
+            "(clip exploration noise to the action box)"
+        )
 
     def _observe(self) -> None:
+        """Build the state graphs of the current simulator state."""
         sim, c = self.sim, self.config
         view = sim.view
         v = sim.v.ravel()[view.vehicle]
@@ -196,51 +280,68 @@ class MiVeCCParallelEnv(ParallelEnv):
         self._v_view = v
 
     def _observations(self) -> dict[str, np.ndarray]:
-        obs = {a: self._edge.obs[0, i] for i, a in enumerate(self.edge_agents)}
-        obs[CLOUD_AGENT] = self._cloud.obs[0, 0]
-        return {a: obs[a] for a in self.agents}
+        """Observation of every live agent (views of the freshly built state graphs)."""
+        if not self.agents:
+            return {}
+        return dict(
+            zip(self.possible_agents, [*self._edge.obs[0], self._cloud.obs[0, 0]], strict=True)
+        )
 
-    def _reward_terms(self, events: Any) -> tuple[dict, dict, dict]:
+    def _reward_terms(self, events: StepEvents) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """SV, velocity and collision reward terms, arrays in ``possible_agents`` order."""
         c, sim = self.config, self.sim
         n_int = c.n_intersections
         view = sim.view
         area = sim.network.control_area(view.lane, view.s)
         inside = area >= 0
         dv = self._v_view - c.reward_v_ref_mps
-        count = np.bincount(area[inside], minlength=n_int)
-        vel_sum = np.bincount(area[inside], dv[inside], minlength=n_int)
-        vel = np.where(count > 0, vel_sum / np.maximum(count, 1), 0.0)
-        idx = self._edge.view_index[0]
-        real = idx >= 0
-        sv = sim.safety.sv
-        sv_sum = np.where(real, sv[np.maximum(idx, 0)] if sv.size else 0.0, 0.0).sum(axis=1)
-        n_dec = real.sum(axis=1)
-        sv_mean = np.where(n_dec > 0, sv_sum / np.maximum(n_dec, 1), 0.0)
+        area_in = area[inside]
+        count = np.bincount(area_in, minlength=n_int)
+        vel_sum = np.bincount(area_in, dv[inside], minlength=n_int)
+        # Column -1 (padding) picks the appended 0, so padded columns add nothing.
+        sv_sum = np.append(sim.safety.sv, 0.0)[self._edge.view_index[0]].sum(axis=1)
+        n_dec = (self._edge.view_index[0] >= 0).sum(axis=1)
         hit_area = events.collided_area[events.collided_area >= 0]
         hits = np.bincount(hit_area, minlength=n_int)
-        r_sv = {a: c.reward_sv_weight * float(sv_mean[i]) for i, a in enumerate(self.edge_agents)}
-        r_vel = {a: float(vel[i]) for i, a in enumerate(self.edge_agents)}
-        r_col = {a: -c.collision_penalty * float(hits[i]) for i, a in enumerate(self.edge_agents)}
-        r_sv[CLOUD_AGENT] = 0.0
-        r_vel[CLOUD_AGENT] = float(dv.mean()) if dv.size else 0.0
-        r_col[CLOUD_AGENT] = -c.collision_penalty * float(events.collided_vehicles[0])
+
+        # Empty areas have zero sums, so dividing by max(count, 1) gives their 0.
+        r_sv = np.zeros(n_int + 1)
+        r_vel = np.empty(n_int + 1)
+        r_col = np.empty(n_int + 1)
+        r_sv[:n_int] = c.reward_sv_weight * (sv_sum / np.maximum(n_dec, 1))
+        r_vel[:n_int] = vel_sum / np.maximum(count, 1)
+        r_vel[n_int] = dv.mean() if dv.size else 0.0
+        r_col[:n_int] = -c.collision_penalty * hits
+        r_col[n_int] = -c.collision_penalty * float(events.collided_vehicles[0])
         return r_sv, r_vel, r_col
 
-    def _infos(self, r_sv: dict, r_vel: dict, r_col: dict) -> dict[str, dict]:
+    def _infos(self, r_sv: np.ndarray, r_vel: np.ndarray, r_col: np.ndarray) -> dict[str, dict]:
+        """Per-agent infos: ``mask``, the reward terms and the episode summary.
+
+        The set of keys is the same at reset and every step (TorchRL's wrapper needs that),
+        and every value is numeric.
+        """
+        if not self.agents:
+            return {}
         summary = self.summary()
-        infos = {}
-        for i, agent in enumerate(self.agents):
-            graphs, node = (
-                (self._cloud, 0) if agent == CLOUD_AGENT else (self._edge, i)
-            )
-            infos[agent] = {
-                "mask": graphs.mask[0, node],
-                "reward_sv": r_sv[agent],
-                "reward_velocity": r_vel[agent],
-                "reward_collision": r_col[agent],
+        masks = [*self._edge.mask[0], self._cloud.mask[0, 0]]
+        return {
+            agent: {
+                "mask": mask,
+                "reward_sv": sv,
+                "reward_velocity": vel,
+                "reward_collision": col,
                 **summary,
             }
-        return infos
+            for agent, mask, sv, vel, col in zip(
+                self.possible_agents,
+                masks,
+                r_sv.tolist(),
+                r_vel.tolist(),
+                r_col.tolist(),
+                strict=True,
+            )
+        }
 
     # ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, float]:
@@ -248,6 +349,7 @@ class MiVeCCParallelEnv(ParallelEnv):
         return metrics.episode_summary(self.sim, 0)
 
     def render(self) -> np.ndarray | None:
+        """An RGB frame of the network (``render_mode="rgb_array"``), else ``None``."""
         if self.render_mode is None:
             return None
         from mivecc_env.render import render_rgb
@@ -255,8 +357,10 @@ class MiVeCCParallelEnv(ParallelEnv):
         return render_rgb(self.sim, 0)
 
     def close(self) -> None:
-        pass
+        """Nothing to release."""
 
     def state(self) -> np.ndarray:
         """Global state: the cloud node's state graph (float32, (K_cloud, K_cloud, 3))."""
+        if self._cloud is None:
+            raise RuntimeError("state: call reset() first")
         return self._cloud.obs[0, 0].copy()

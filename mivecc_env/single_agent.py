@@ -23,7 +23,17 @@ from mivecc_env.parallel_env import MiVeCCParallelEnv, edge_agent
 
 
 class MiVeCCEdgeEnv(gymnasium.Env):
-    """The edge node of one intersection as a Gymnasium environment."""
+    """The edge node of one intersection as a Gymnasium environment.
+
+    Args:
+        intersection: index ``row * cols + col`` of the controlled intersection.
+        render_mode: ``None`` or ``"rgb_array"``.
+        **overrides: config fields as for :class:`MiVeCCParallelEnv` (``scheme`` defaults to
+            ``"EE"`` here).
+
+    Raises:
+        ConfigError: a bad config value or keyword, or ``intersection`` outside the grid.
+    """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
 
@@ -33,21 +43,28 @@ class MiVeCCEdgeEnv(gymnasium.Env):
         overrides.setdefault("scheme", "EE")
         self._env = MiVeCCParallelEnv(render_mode=render_mode, **overrides)
         n = self._env.config.n_intersections
-        if not isinstance(intersection, int) or not 0 <= intersection < n:
-            raise ConfigError(f"intersection: must be an integer in [0, {n - 1}], "
-                              f"got {intersection!r}")
-        self.agent = edge_agent(intersection)
+        if (
+            isinstance(intersection, bool)
+            or not isinstance(intersection, int | np.integer)
+            or not 0 <= intersection < n
+        ):
+            raise ConfigError(
+                f"intersection: must be an integer in [0, {n - 1}], got {intersection!r}"
+            )
+        self.agent = edge_agent(int(intersection))
         self.observation_space = self._env.observation_space(self.agent)
         self.action_space = self._env.action_space(self.agent)
         self.render_mode = render_mode
 
     @property
     def parallel_env(self) -> MiVeCCParallelEnv:
+        """The underlying multi-agent environment."""
         return self._env
 
     def reset(
         self, *, seed: int | None = None, options: dict | None = None
     ) -> tuple[np.ndarray, dict]:
+        """Start an episode; an unseeded reset draws its seed from ``self.np_random``."""
         super().reset(seed=seed)
         if seed is None:
             seed = int(self.np_random.integers(0, 2**31 - 1))
@@ -55,9 +72,20 @@ class MiVeCCEdgeEnv(gymnasium.Env):
         return obs[self.agent], infos[self.agent]
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        """One step with this edge node's ``(K,)`` accelerations [m/s^2]."""
         obs, rewards, terms, truncs, infos = self._env.step({self.agent: action})
-        return (obs[self.agent], rewards[self.agent], terms[self.agent], truncs[self.agent],
-                infos[self.agent])
+        return (
+            obs[self.agent],
+            rewards[self.agent],
+            terms[self.agent],
+            truncs[self.agent],
+            infos[self.agent],
+        )
 
     def render(self) -> np.ndarray | None:
+        """An RGB frame (``render_mode="rgb_array"``), else ``None``."""
         return self._env.render()
+
+    def close(self) -> None:
+        """Close the underlying environment."""
+        self._env.close()

@@ -1,0 +1,203 @@
+"""Bad input to the MiVeCC environments fails early with a message that says what to fix."""
+
+from __future__ import annotations
+
+import re
+
+import gymnasium
+import numpy as np
+import pytest
+
+import mivecc_env  # noqa: F401  (registers the gymnasium id)
+from mivecc_env import ConfigError, MiVeCCConfig, MiVeCCParallelEnv, mivecc_v0
+
+GYM_ID = "mivecc/MiVeCCEdge-v0"
+
+
+@pytest.fixture
+def env() -> MiVeCCParallelEnv:
+    """A reset 1 x 2 grid (agents edge_0, edge_1, cloud_0)."""
+    e = mivecc_v0.parallel_env(rows=1, cols=2, density=1800, max_steps=50, scheme="EEC")
+    e.reset(seed=0)
+    for _ in range(5):
+        e.step({})
+    return e
+
+
+def good_actions(env: MiVeCCParallelEnv) -> dict[str, np.ndarray]:
+    return {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents}
+
+
+def step_rejects(env: MiVeCCParallelEnv, agent: str, action: object, *fragments: str) -> None:
+    """``step`` with ``agent``'s action replaced raises ValueError naming the agent and all
+    ``fragments``, and leaves the environment where it was."""
+    actions: dict[str, object] = dict(good_actions(env))
+    actions[agent] = action
+    before = env.sim.step_count
+    with pytest.raises(ValueError, match=re.escape(repr(agent))) as err:
+        env.step(actions)  # type: ignore[arg-type]
+    for fragment in fragments:
+        assert fragment in str(err.value)
+    assert env.sim.step_count == before
+    env.step(good_actions(env))  # still usable
+
+
+# --------------------------------------------------------------------------------------------
+# Actions
+@pytest.mark.parametrize(
+    ("agent", "shape", "expected"),
+    [
+        ("edge_0", (14,), "(15,)"),
+        ("edge_1", (16,), "(15,)"),
+        ("edge_1", (15, 1), "(15,)"),
+        ("edge_0", (), "(15,)"),
+        ("edge_0", (60,), "(15,)"),
+        ("cloud_0", (15,), "(60,)"),
+        ("cloud_0", (1, 60), "(60,)"),
+    ],
+)
+def test_wrong_action_shape(
+    env: MiVeCCParallelEnv, agent: str, shape: tuple[int, ...], expected: str
+) -> None:
+    step_rejects(
+        env, agent, np.zeros(shape, np.float32), f"expected shape {expected}", f"got shape {shape}"
+    )
+
+
+@pytest.mark.parametrize("agent", ["edge_1", "cloud_0"])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_action(env: MiVeCCParallelEnv, agent: str, bad: float) -> None:
+    action = np.zeros(env.action_space(agent).shape, np.float32)
+    action[3] = bad
+    step_rejects(env, agent, action, "NaN or inf", "[-3.0, 3.0]")
+
+
+@pytest.mark.parametrize("agent", ["edge_0", "cloud_0"])
+@pytest.mark.parametrize("bad", [3.01, -3.5, 1e9])
+def test_out_of_range_action(env: MiVeCCParallelEnv, agent: str, bad: float) -> None:
+    action = np.zeros(env.action_space(agent).shape)
+    action[-1] = bad
+    step_rejects(env, agent, action, "[-3.0, 3.0]", "clip")
+
+
+def test_out_of_range_follows_a_max() -> None:
+    e = mivecc_v0.parallel_env(rows=1, cols=1, a_max_mps2=2.0, max_steps=5)
+    e.reset(seed=0)
+    e.step({"edge_0": np.full(15, 2.0)})
+    with pytest.raises(ValueError, match=re.escape("[-2.0, 2.0]")):
+        e.step({"edge_0": np.full(15, 2.5)})
+
+
+def test_non_numeric_action(env: MiVeCCParallelEnv) -> None:
+    step_rejects(env, "edge_1", ["a"] * 15, "expected shape (15,)", "non-numeric")
+    step_rejects(env, "cloud_0", None, "expected shape (60,)")
+
+
+@pytest.mark.parametrize("key", ["edge_2", "edge_99", "cloud_1", "foo", 0])
+def test_unknown_agent(env: MiVeCCParallelEnv, key: object) -> None:
+    actions: dict[object, np.ndarray] = dict(good_actions(env))
+    actions[key] = np.zeros(15, np.float32)
+    with pytest.raises(ValueError, match="unknown agents") as err:
+        env.step(actions)  # type: ignore[arg-type]
+    assert repr(str(key)) in str(err.value)
+    assert "edge_0" in str(err.value)  # lists the valid agents
+
+
+def test_actions_not_a_dict(env: MiVeCCParallelEnv) -> None:
+    with pytest.raises(ValueError, match="expected a dict"):
+        env.step([np.zeros(15)] * 3)  # type: ignore[arg-type]
+
+
+def test_single_agent_bad_action() -> None:
+    e = gymnasium.make(GYM_ID, rows=1, cols=1, max_steps=10)
+    e.reset(seed=0)
+    with pytest.raises(ValueError, match=re.escape("'edge_0'")):
+        e.step(np.full(15, np.nan))
+    with pytest.raises(ValueError, match=re.escape("expected shape (15,)")):
+        e.step(np.zeros(3))
+
+
+# --------------------------------------------------------------------------------------------
+# Configuration
+@pytest.mark.parametrize(
+    ("kwargs", "field", "fragments"),
+    [
+        ({"rows": 0}, "rows", ("[1, 16]", "got 0")),
+        ({"cols": 17}, "cols", ("[1, 16]",)),
+        ({"rows": 1.5}, "rows", ("an integer",)),
+        ({"density": -5}, "density_vplh", ("[1.0, 3600.0]", "got -5")),
+        ({"density": float("nan")}, "density_vplh", ("[1.0, 3600.0]",)),
+        ({"max_steps": 0}, "max_steps", ("[1, ",)),
+        ({"scheme": "X"}, "scheme", ("'E', 'EE', 'EEC'",)),
+        ({"k_edge": 1}, "k_edge", ("[2, 256]",)),
+        ({"render_mode": "human"}, "render_mode", ("rgb_array", "'human'")),
+        ({"config": {"rows": 1}}, "config", ("MiVeCCConfig", "dict")),
+        ({"densty": 900}, "densty", ("unknown", "did you mean 'density'")),
+        ({"seed": 3}, "seed", ("unknown",)),
+    ],
+)
+def test_bad_config(kwargs: dict[str, object], field: str, fragments: tuple[str, ...]) -> None:
+    with pytest.raises(ConfigError) as err:
+        mivecc_v0.parallel_env(**kwargs)
+    message = str(err.value)
+    assert message.startswith(f"{field}: ")
+    for fragment in fragments:
+        assert fragment in message
+
+
+def test_config_error_is_a_value_error() -> None:
+    assert issubclass(ConfigError, ValueError)
+
+
+def test_config_object_and_overrides() -> None:
+    cfg = MiVeCCConfig(rows=1, cols=1)
+    e = mivecc_v0.parallel_env(config=cfg, density=1200)
+    assert e.config.rows == 1 and e.config.density_vplh == 1200
+    with pytest.raises(ConfigError, match="rows"):
+        mivecc_v0.parallel_env(config=cfg, rows=-1)
+
+
+def test_aec_env_bad_config() -> None:
+    with pytest.raises(ConfigError, match="rows"):
+        mivecc_v0.env(rows=0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "fragments"),
+    [
+        ({"intersection": 99}, ("intersection", "[0, 0]", "99")),
+        ({"intersection": -1}, ("intersection", "[0, 0]")),
+        ({"intersection": True}, ("intersection",)),
+        ({"intersection": 3, "rows": 2, "cols": 1}, ("intersection", "[0, 1]")),
+        ({"density": -5}, ("density_vplh",)),
+        ({"colls": 2}, ("colls", "unknown")),
+    ],
+)
+def test_gymnasium_bad_config(kwargs: dict[str, object], fragments: tuple[str, ...]) -> None:
+    kwargs = {"rows": 1, "cols": 1, **kwargs}
+    with pytest.raises(ConfigError) as err:
+        gymnasium.make(GYM_ID, **kwargs)
+    for fragment in fragments:
+        assert fragment in str(err.value)
+
+
+# --------------------------------------------------------------------------------------------
+# Call order
+def test_step_before_reset() -> None:
+    e = mivecc_v0.parallel_env(rows=1, cols=1)
+    with pytest.raises(RuntimeError, match=r"reset\(\)"):
+        e.step({})
+    with pytest.raises(RuntimeError, match=r"reset\(\)"):
+        e.state()
+
+
+def test_step_after_episode_end() -> None:
+    e = mivecc_v0.parallel_env(rows=1, cols=1, max_steps=2)
+    e.reset(seed=0)
+    e.step({})
+    e.step({})
+    assert e.agents == []
+    with pytest.raises(RuntimeError, match=r"reset\(\)"):
+        e.step({})
+    e.reset()
+    e.step({})
