@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import functools
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -41,6 +42,7 @@ def min_travel_time_s(config: MiVeCCConfig, path_length_m: float | np.ndarray) -
     return np.where(short, t_short, t_acc + (length - d_acc) / v1)
 
 
+@functools.lru_cache(maxsize=64)
 def upper_bound_velocity_mps(config: MiVeCCConfig) -> float:
     """Theoretical upper bound of the average travel velocity [m/s].
 
