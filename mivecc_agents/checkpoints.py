@@ -46,6 +46,7 @@ __all__ = [
     "CHECKPOINT_FORMAT_VERSION",
     "ENV_VERSION",
     "CheckpointError",
+    "export_policy",
     "load_checkpoint",
     "save_checkpoint",
 ]
@@ -104,6 +105,9 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
             torch.save(data, fh)
             fh.flush()
             os.fsync(fh.fileno())
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -168,3 +172,20 @@ def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -
             f"uses K={spec.grid_size}"
         )
     return data
+
+
+def export_policy(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
+    """Write a slim copy of a checkpoint for shipping/evaluation: without the optimiser state
+    and the DDPGLoss copy (targets), so it cannot be resumed but loads with ``load_policy``.
+
+    Args:
+        src: Full training checkpoint.
+        dst: Destination.
+
+    Returns:
+        The path written.
+    """
+    data = load_checkpoint(src)
+    slim = {k: v for k, v in data.items() if k not in ("loss", "optimizer")}
+    slim["extra"] = {**(slim.get("extra") or {}), "exported_from": str(src)}
+    return save_checkpoint(dst, slim)

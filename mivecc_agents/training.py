@@ -205,14 +205,22 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     if rows:
         frames = [float(r["frames"]) for r in rows]
-        vcols = [c for c in rows[0] if c.startswith("avg_velocity_mps_d")]
-        for c in vcols:
-            axes[0].plot(frames, [float(r[c]) for r in rows], label=f"{c[18:]} veh/lane/h")
+        ecols = [c for c in rows[0] if c.startswith("episode_velocity_mps_d")]
+        plotted = False
+        for c in ecols:  # final value of each finished episode
+            pts = [(f, float(r[c])) for f, r in zip(frames, rows, strict=True) if r[c] != "nan"]
+            if pts:
+                xs, ys = zip(*pts, strict=True)
+                axes[0].plot(xs, ys, "o-", label=f"{c[22:]} veh/lane/h")
+                plotted = True
+        if not plotted:  # no episode finished yet: running value of the current episode
+            for c in (c for c in rows[0] if c.startswith("avg_velocity_mps_d")):
+                axes[0].plot(frames, [float(r[c]) for r in rows], label=f"{c[18:]} veh/lane/h")
         axes[1].plot(frames, [float(r["critic_loss"]) for r in rows], label="critic loss")
         axes[1].plot(frames, [float(r["actor_loss"]) for r in rows], label="actor loss")
     axes[0].set_xlabel("environment frames [steps]")
     axes[0].set_ylabel("average travel velocity [m/s]")
-    axes[0].set_title("learning curve (running episode value)")
+    axes[0].set_title("average travel velocity at episode end")
     axes[0].legend(title="density")
     axes[1].set_xlabel("environment frames [steps]")
     axes[1].set_ylabel("loss [-]")
@@ -422,6 +430,7 @@ def train(
         "episode_reward",
         "avg_velocity_mps",
         *[f"avg_velocity_mps_d{_fmt_density(d)}" for d in dens],
+        *[f"episode_velocity_mps_d{_fmt_density(d)}" for d in dens],
         "collisions",
         "critic_loss",
         "actor_loss",
@@ -516,7 +525,8 @@ def train(
                         qm.append(out["pred_value"].detach().mean())
                     state["updates"] += n_upd
                 t_opt = time.perf_counter() - t1
-                sched.step()
+                if n_upd:  # (stepping before the first optimizer.step() only warns)
+                    sched.step()
                 if workers > 1 or ray_address is not None:
                     collector.update_policy_weights_()
                 metrics = _metrics(
@@ -614,15 +624,20 @@ def _metrics(
         "buffer": buf_len,
         "wall_s": wall,
     }
-    # per density: the running episode value at the last step of the batch
+    # per density: the running episode value at the last step of the batch, and the final
+    # value of the last episode that ended in this batch (NaN if none ended)
     if vel.ndim >= 3 and vel.shape[0] == len(dens):
-        last = vel[:, -1, 0]
-        for i, d in enumerate(dens):
-            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(last[i])
+        per_d = vel[..., 0]  # (n_densities, T)
+        done_d = nxt["done"].reshape(per_d.shape)
     else:
-        v = float(vel.reshape(-1, vel.shape[-1])[-1, 0])
-        for d in dens:
-            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = v
+        per_d = vel.reshape(-1, vel.shape[-1])[:, 0].unsqueeze(0).expand(len(dens), -1)
+        done_d = done.unsqueeze(0).expand(len(dens), -1)
+    for i, d in enumerate(dens):
+        row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_d[i, -1])
+        ends = torch.nonzero(done_d[i]).flatten()
+        row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
+            float(per_d[i, ends[-1]]) if ends.numel() else math.nan
+        )
     row["avg_velocity_mps"] = sum(row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in dens) / len(
         dens
     )

@@ -97,3 +97,27 @@ def test_pretrained_path_is_path_or_none():
     for kind in ("edge", "cloud"):
         p = pretrained_path(kind)
         assert p is None or p.is_file()
+
+
+def test_export_policy_drops_training_state(tmp_path):
+    import numpy as np
+
+    from mivecc_agents.checkpoints import export_policy
+
+    full = _payload()
+    full["loss"] = {"x": torch.zeros(3)}
+    full["optimizer"] = {"state": {}}
+    src = save_checkpoint(tmp_path / "full.pt", full)
+    dst = export_policy(src, tmp_path / "slim.pt")
+    data = load_checkpoint(dst, expected_kind="edge")
+    assert "loss" not in data and "optimizer" not in data
+    obs = np.zeros((2, 15, 15, 3), np.float32)
+    mask = np.ones((2, 15), np.float32)
+    np.testing.assert_array_equal(load_policy(src)(obs, mask), load_policy(dst)(obs, mask))
+
+
+def test_cli_has_train_subcommand():
+    from mivecc_agents.cli import build_parser
+
+    args = build_parser().parse_args(["train", "--stage", "cloud", "--density", "900", "1500"])
+    assert args.stage == "cloud" and args.density == [900.0, 1500.0]

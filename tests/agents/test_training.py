@@ -85,6 +85,7 @@ def test_edge_stage_trains(edge_run):
         "fps_collect",
         "fps_optim",
         "avg_velocity_mps_d1500",
+        "episode_velocity_mps_d1500",
         "reward_mean",
     ):
         assert col in header
