@@ -53,6 +53,11 @@ class StateGraphs:
     view_index: IntArray
 
 
+def _unit_clip(x: FloatArray) -> FloatArray:
+    """Clip to [-1, 1] (cheaper than ``np.clip`` on small arrays)."""
+    return np.minimum(np.maximum(x, -1.0), 1.0)
+
+
 def _rank_in_groups(sorted_groups: IntArray) -> IntArray:
     """Position of each element within its run of equal, sorted group ids."""
     if sorted_groups.size == 0:
@@ -117,52 +122,61 @@ def build_graphs(
         area_centre_s: (len(decision),) centre of each decision's area on its lane [m];
             references outside ``area_radius_m`` of it are ignored (edge nodes).
     """
-    obs = np.zeros((batch * n_nodes, k, k, 3), dtype=np.float32)
+    # Built column-major (node, column, row, channel) so a column is one contiguous block.
+    obs_t = np.zeros((batch * n_nodes, k, k, 3), dtype=np.float32)
     mask = np.zeros((batch * n_nodes, k), dtype=np.float32)
     slot = np.full((batch * n_nodes, k), -1, dtype=np.int64)
     view_index = np.full((batch * n_nodes, k), -1, dtype=np.int64)
     shape = (batch, n_nodes, k)
-    if decision.size == 0:
-        return StateGraphs(obs.reshape(*shape, k, 3), mask.reshape(shape), slot.reshape(shape),
+
+    def finish() -> StateGraphs:
+        obs = np.ascontiguousarray(obs_t.transpose(0, 2, 1, 3)).reshape(*shape, k, 3)
+        return StateGraphs(obs, mask.reshape(shape), slot.reshape(shape),
                            view_index.reshape(shape))
 
-    v_lo = config.velocity_floor_mps
-    v_scale = (config.v_max_mps - v_lo) / 2.0
+    if decision.size == 0:
+        return finish()
 
-    def scaled(pos: FloatArray, vel: FloatArray, acc: FloatArray) -> FloatArray:
-        return np.stack([
-            np.clip(pos / position_scale_m, -1.0, 1.0),
-            (vel - v_lo) / v_scale - 1.0,
-            acc / config.a_max_mps2,
-        ], axis=-1)
+    v_lo = config.velocity_floor_mps
+    v_norm = ((velocity - v_lo) * (2.0 / (config.v_max_mps - v_lo)) - 1.0).astype(np.float32)
+    a_norm = (accel * (1.0 / config.a_max_mps2)).astype(np.float32)
+    inv_scale = 1.0 / position_scale_m
 
     s_d = view.s[decision]
     to_stop = s_d - network.next_stop_s(view.lane[decision], s_d)
-    obs[node, 0, column] = scaled(to_stop, velocity[decision], accel[decision])
+    head = obs_t[node, column, 0]  # (D, 3) copy, written back below
+    head[:, 0] = _unit_clip(to_stop * inv_scale)
+    head[:, 1] = v_norm[decision]
+    head[:, 2] = a_norm[decision]
+    obs_t[node, column, 0] = head
 
     # Reference candidates: the K-1 points on either side on the sorted virtual lane.
     p = view.own_point[decision]
     offsets = np.concatenate([np.arange(-(k - 1), 0), np.arange(1, k)])
     cand = p[:, None] + offsets[None, :]
     valid = (cand >= view.point_run_start[p][:, None]) & (cand < view.point_run_end[p][:, None])
-    cand = np.clip(cand, 0, view.point_pos.size - 1)
+    np.minimum(np.maximum(cand, 0, out=cand), view.point_pos.size - 1, out=cand)
     pos = view.point_pos[cand]
     if area_centre_s is not None:
         valid &= np.abs(pos - area_centre_s[:, None]) <= area_radius_m
-    dist = np.where(valid, np.abs(pos - s_d[:, None]), np.inf)
+    rel = pos - s_d[:, None]
+    dist = np.where(valid, np.abs(rel), np.inf)
     nearest = np.argsort(dist, axis=1, kind="stable")[:, : k - 1]
-    chosen = np.take_along_axis(cand, nearest, axis=1)
-    real = np.isfinite(np.take_along_axis(dist, nearest, axis=1))
+    rows = np.arange(nearest.shape[0])[:, None]
+    real = dist[rows, nearest] < np.inf
+    chosen = cand[rows, nearest]
     ref_vehicle = view.point_vehicle[chosen]
-    feats = scaled(view.point_pos[chosen] - s_d[:, None], velocity[ref_vehicle],
-                   accel[ref_vehicle]) * real[..., None]
-    obs[node[:, None], np.arange(1, k)[None, :], column[:, None]] = feats
+    block = np.empty((*chosen.shape, 3), dtype=np.float32)
+    block[..., 0] = _unit_clip(rel[rows, nearest] * inv_scale)
+    block[..., 1] = v_norm[ref_vehicle]
+    block[..., 2] = a_norm[ref_vehicle]
+    block[~real] = 0.0
+    obs_t[node, column, 1:] = block
 
     mask[node, column] = 1.0
     slot[node, column] = view.vehicle[decision]
     view_index[node, column] = decision
-    return StateGraphs(obs.reshape(*shape, k, 3), mask.reshape(shape), slot.reshape(shape),
-                       view_index.reshape(shape))
+    return finish()
 
 
 def edge_graphs(
