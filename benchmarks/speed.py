@@ -11,7 +11,9 @@ For every grid (``--grids``, default ``1x1 3x3``) and density (``--densities``, 
     demand, in the same run (``run_sumo(rows, cols, density, steps, seed, warmup)``).
 
 Each measurement first runs ``--warmup`` untimed steps (the network fills), then times
-``--steps`` steps with ``time.perf_counter``. Vehicle-steps are the simulator's own counter
+``--steps`` steps with ``time.perf_counter``. With ``--repeats R`` every measurement of a grid
+and density runs R times, round-robin over the engines, and the fastest run is kept (other
+processes on the machine only ever slow a run down). Vehicle-steps are the simulator's own counter
 (``Simulator.vehicle_steps``: vehicles moved per step, summed over the environments), read
 before and after the timed loop, so counting costs nothing inside it; SUMO's count is a
 ``getIDCount()`` per step inside its timed loop (about 1 % of a step, see sumo_reference.py).
@@ -38,6 +40,7 @@ from __future__ import annotations
 import argparse
 import csv
 import datetime as dt
+import functools
 import importlib.util
 import json
 import os
@@ -152,11 +155,11 @@ def measure_sumo(
     return row
 
 
-def best_of(repeats: int, fn: Callable[[], dict[str, Any]]) -> dict[str, Any]:
-    """The fastest of ``repeats`` runs of a measurement (least disturbed by other load)."""
-    runs = [fn() for _ in range(max(1, repeats))]
-    best = min(runs, key=lambda r: r["elapsed_s"])
+def keep_fastest(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The fastest of repeated runs of one measurement (the least disturbed by other load)."""
+    best = dict(min(runs, key=lambda r: r["elapsed_s"]))
     best["repeats"] = len(runs)
+    best["steps_per_s_all"] = [r["steps_per_s"] for r in runs]
     return best
 
 
@@ -313,7 +316,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=2000, help="timed steps (default 2000)")
     p.add_argument("--warmup", type=int, default=600, help="untimed steps first (default 600)")
     p.add_argument("--repeats", type=int, default=1,
-                   help="repeat each measurement (SUMO too), keep the fastest (default 1)")
+                   help="repeat every measurement (SUMO too, round-robin), keep the fastest "
+                   "(default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-sumo", action="store_true", help="skip SUMO even if installed")
     p.add_argument("--no-env", action="store_true", help="skip the full ParallelEnv step")
@@ -342,31 +346,38 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     use_sumo = not args.no_sumo and sumo_reference.sumo_available()
 
-    jobs: list[tuple[str, Callable[[], dict[str, Any]]]] = []
+    # Per grid and density, the engines run one after the other and the repeats go round-robin
+    # over them, so load from other processes hits mivecc and SUMO alike.
+    groups: list[list[tuple[str, Callable[[], dict[str, Any]]]]] = []
     for rows, cols in args.grids:
         for density in args.densities:
             tag = f"{rows}x{cols} @{density:g}"
-            common = (rows, cols, density)
+            kw = {"rows": rows, "cols": cols, "density": density, "steps": args.steps,
+                  "warmup": args.warmup, "seed": args.seed}
+            group: list[tuple[str, Callable[[], dict[str, Any]]]] = []
             if not args.no_env:
-                jobs.append((f"{tag} env", lambda c=common: best_of(
-                    args.repeats, lambda: measure_env(*c, args.steps, args.warmup, args.seed))))
+                group.append((f"{tag} env", functools.partial(measure_env, **kw)))
             for b in args.batches:
-                jobs.append((f"{tag} core B={b}", lambda c=common, b=b: best_of(
-                    args.repeats,
-                    lambda: measure_core(*c, b, args.steps, args.warmup, args.seed))))
+                group.append((f"{tag} core B={b}", functools.partial(measure_core, batch=b, **kw)))
             if use_sumo:
-                jobs.append((f"{tag} sumo", lambda c=common: best_of(
-                    args.repeats, lambda: measure_sumo(*c, args.steps, args.warmup, args.seed))))
+                group.append((f"{tag} sumo", functools.partial(measure_sumo, **kw)))
+            groups.append(group)
 
     from tqdm.auto import tqdm
 
     results = []
     load_before = os.getloadavg() if hasattr(os, "getloadavg") else None
     t_start = time.perf_counter()
-    with tqdm(jobs, unit="run", file=sys.stderr, disable=args.no_progress) as bar:
-        for label, job in bar:
-            bar.set_description(label)
-            results.append(job())
+    total = sum(len(g) for g in groups) * args.repeats
+    with tqdm(total=total, unit="run", file=sys.stderr, disable=args.no_progress) as bar:
+        for group in groups:
+            runs: list[list[dict[str, Any]]] = [[] for _ in group]
+            for _ in range(args.repeats):
+                for (label, job), kept in zip(group, runs, strict=True):
+                    bar.set_description(label)
+                    kept.append(job())
+                    bar.update()
+            results.extend(keep_fastest(kept) for kept in runs)
     ratio_rows = ratios(results)
     floor = floors(ratio_rows)
     text = markdown_tables(results, ratio_rows, floor)
