@@ -1,0 +1,174 @@
+"""The paper's efficiency comparison: E, EE, EEC and a signalized baseline over densities.
+
+For every grid, density, scheme and seed this runs one evaluation episode
+(:func:`mivecc_agents.evaluation.evaluate_scheme`) with the shipped pretrained coordinators (or
+the checkpoints given with ``--edge`` / ``--cloud``), then writes
+
+* ``paper_table.csv`` - one row per run,
+* ``paper_table.md`` - per grid and density: mean average travel velocity of each scheme, the
+  upper bound, collisions, and the improvement rates EE vs E, EEC vs E, EEC vs EE and EEC vs the
+  signalized baseline next to the paper's Table (3x3),
+* ``velocity_vs_density_<grid>.png`` - average travel velocity vs density per scheme with the
+  upper bound.
+
+Usage (the full table; about 170 episodes):
+    python benchmarks/paper_table.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import multiprocessing as mp
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+SCHEMES = ("signalized", "E", "EE", "EEC")
+DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
+
+#: The paper's Table eff_imp_rate (3x3 grid), improvement of the average velocity [%].
+PAPER_3X3: dict[str, dict[int, float]] = {
+    "EEC vs signalized (paper: vs Coder)": dict(zip(DENSITIES, (
+        79.80, 85.10, 146.63, 283.32, 352.26, 419.48, 459.09), strict=True)),
+    "EE vs E": dict(zip(DENSITIES, (0.14, 0.40, 0.52, 0.91, 1.47, 1.92, 2.12), strict=True)),
+    "EEC vs E": dict(zip(DENSITIES, (0.37, 1.00, 1.56, 1.96, 2.32, 2.76, 2.96), strict=True)),
+    "EEC vs EE": dict(zip(DENSITIES, (0.23, 0.6, 1.03, 1.04, 0.84, 0.83, 0.82), strict=True)),
+}
+COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"))
+
+
+def _run(job: tuple[str, int, int, float, int, int, str | None, str | None]) -> dict[str, Any]:
+    from mivecc_agents.evaluation import evaluate_scheme
+    from mivecc_agents.policies import load_policy, pretrained_policies
+
+    scheme, rows, cols, density, steps, seed, edge_path, cloud_path = job
+    policies = pretrained_policies()
+    if edge_path:
+        policies["edge"] = load_policy(edge_path, expected_kind="edge")
+    if cloud_path:
+        policies["cloud"] = load_policy(cloud_path, expected_kind="cloud")
+    return evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
+                           progress=False, warn=False)
+
+
+def improvement(new: float, old: float) -> float:
+    """Relative improvement of ``new`` over ``old`` [%]."""
+    return 100.0 * (new - old) / old if old > 0 else float("nan")
+
+
+def summarise(rows: list[dict[str, Any]], grid: str) -> tuple[str, dict]:
+    """Markdown table of one grid and the per-(scheme, density) means."""
+    r, c = (int(x) for x in grid.split("x"))
+    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
+    densities = sorted({x["density"] for x in mine})
+    schemes = [s for s in SCHEMES if any(x["scheme"] == s for x in mine)]
+    mean: dict[tuple[str, float], dict[str, float]] = {}
+    for s, d in itertools.product(schemes, densities):
+        runs = [x for x in mine if x["scheme"] == s and x["density"] == d]
+        if runs:
+            mean[(s, d)] = {
+                "v": float(np.mean([x["avg_travel_velocity_mps"] for x in runs])),
+                "v_sd": float(np.std([x["avg_travel_velocity_mps"] for x in runs])),
+                "collisions": float(np.sum([x["collisions"] for x in runs])),
+                "ub": float(runs[0]["upper_bound_mps"]),
+                "n": len(runs),
+                "actions": runs[0]["coordinator_actions"],
+            }
+    head = "| veh/lane/h | upper bound | " + " | ".join(
+        f"{s} v [m/s] (collisions)" for s in schemes) + " | " + " | ".join(
+        f"{a} vs {b} [%]" for a, b in COMPARISONS if a in schemes and b in schemes) + " |"
+    lines = [f"### {grid}", "", head, "|" + "---|" * (head.count("|") - 1)]
+    for d in densities:
+        cells = [f"{d:.0f}", f"{mean[(schemes[0], d)]['ub']:.3f}"]
+        cells += [f"{mean[(s, d)]['v']:.3f} ± {mean[(s, d)]['v_sd']:.3f} "
+                  f"({mean[(s, d)]['collisions']:.0f})" for s in schemes]
+        for a, b in COMPARISONS:
+            if a in schemes and b in schemes:
+                ours = improvement(mean[(a, d)]["v"], mean[(b, d)]["v"])
+                cells.append(f"{ours:+.2f}")
+        lines.append("| " + " | ".join(cells) + " |")
+    if grid == "3x3":
+        lines += ["", "The paper's Table (3x3), improvement of the average velocity [%]:", "",
+                  "| comparison | " + " | ".join(str(d) for d in DENSITIES) + " |",
+                  "|" + "---|" * (len(DENSITIES) + 1)]
+        for name, values in PAPER_3X3.items():
+            lines.append(f"| {name} | " + " | ".join(f"{values[d]:.2f}" for d in DENSITIES)
+                         + " |")
+    actions = {s: mean[(s, densities[0])]["actions"] for s in schemes}
+    lines += ["", f"Coordinator actions per scheme: {actions}; ± is the standard deviation over "
+              f"{mean[(schemes[0], densities[0])]['n']} seeds; collisions are summed over seeds."]
+    return "\n".join(lines), mean
+
+
+def plot(mean: dict, grid: str, path: Path) -> None:
+    """Average travel velocity vs density per scheme, with the upper bound."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.add_subplot()
+    schemes = sorted({s for s, _ in mean}, key=SCHEMES.index)
+    for s in schemes:
+        ds = sorted(d for t, d in mean if t == s)
+        ax.errorbar(ds, [mean[(s, d)]["v"] for d in ds], yerr=[mean[(s, d)]["v_sd"] for d in ds],
+                    marker="o", capsize=3, label=f"MiVeCC-{s}" if s != "signalized" else
+                    "signalized (fixed time + IDM)")
+    ds = sorted({d for _, d in mean})
+    ax.plot(ds, [mean[(schemes[0], d)]["ub"] for d in ds], "k--", label="upper bound")
+    ax.set_xlabel("density [veh/lane/h]")
+    ax.set_ylabel("average travel velocity [m/s]")
+    ax.set_title(f"Average travel velocity vs density, {grid} grid")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+
+
+def main(argv: Sequence[str] | None = None) -> Path:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--grids", nargs="+", default=["1x1", "3x3"])
+    parser.add_argument("--densities", type=float, nargs="+", default=list(DENSITIES))
+    parser.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=SCHEMES)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--edge", default=None, help="edge checkpoint (default: shipped)")
+    parser.add_argument("--cloud", default=None, help="cloud checkpoint (default: shipped)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
+    args = parser.parse_args(argv)
+
+    jobs = []
+    for grid in args.grids:
+        r, c = (int(x) for x in grid.split("x"))
+        for scheme, density, seed in itertools.product(args.schemes, args.densities, args.seeds):
+            jobs.append((scheme, r, c, density, args.steps, seed, args.edge, args.cloud))
+    if args.workers > 1:
+        with mp.get_context("spawn").Pool(args.workers) as pool:
+            rows = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="episodes"))
+    else:
+        rows = [_run(j) for j in tqdm(jobs, desc="episodes")]
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    keys = list(rows[0])
+    with open(args.out / "paper_table.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    command = "python benchmarks/paper_table.py " + " ".join(argv if argv is not None else
+                                                              __import__("sys").argv[1:])
+    parts = [f"Command: `{command.strip()}`", ""]
+    for grid in args.grids:
+        text, mean = summarise(rows, grid)
+        parts += [text, ""]
+        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png")
+    (args.out / "paper_table.md").write_text("\n".join(parts))
+    print("\n".join(parts))
+    return args.out
+
+
+if __name__ == "__main__":
+    main()
