@@ -133,6 +133,12 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None,
                    help="also write the JSON result to this file")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--edge-checkpoint", type=Path, default=None,
+                   help="edge policy checkpoint (default: the shipped pretrained one)")
+    p.add_argument("--cloud-checkpoint", type=Path, default=None,
+                   help="cloud policy checkpoint (default: the shipped pretrained one)")
+    p.add_argument("--no-pretrained", action="store_true",
+                   help="ignore the shipped checkpoints: EE/EEC act with zero coordinator actions")
     p.set_defaults(func=cmd_evaluate)
     return p
 
@@ -168,15 +174,35 @@ def format_table(results: list[dict[str, Any]], mean: dict[str, Any] | None = No
     return "\n".join(lines)
 
 
+def evaluation_policies(args: argparse.Namespace) -> dict[str, Any]:
+    """Coordinator policies for ``evaluate``: given checkpoints, else the shipped ones."""
+    from mivecc_agents.checkpoints import CheckpointError
+    from mivecc_agents.policies import load_policy, pretrained_policies
+
+    policies = {} if args.no_pretrained else pretrained_policies()
+    for kind, path in (("edge", args.edge_checkpoint), ("cloud", args.cloud_checkpoint)):
+        if path is not None:
+            try:
+                policies[kind] = load_policy(path, expected_kind=kind)
+            except CheckpointError as exc:  # a user error: exit 2 with the message
+                raise ConfigError(f"--{kind}-checkpoint: {exc}") from exc
+    return policies
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Run ``evaluate``: one episode per seed, print and optionally save the metrics."""
     overrides = config_overrides_from_args(args)
     seeds = args.seeds if args.seeds else [args.seed]
+    policies = evaluation_policies(args) if args.scheme in ("EE", "EEC") else {}
     results = [
         evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps, seed,
-                        progress=not args.no_progress, warn=i == 0, **overrides)
+                        policies=policies, progress=not args.no_progress, warn=i == 0,
+                        **overrides)
         for i, seed in enumerate(seeds)
     ]
+    for result in results:
+        for kind, policy in policies.items():
+            result[f"{kind}_checkpoint"] = getattr(policy, "checkpoint", "")
     if len(results) == 1:
         document: dict[str, Any] = results[0]
         stats = None

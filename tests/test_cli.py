@@ -172,3 +172,13 @@ def test_evaluate_scheme_rejects_bad_arguments() -> None:
         evaluate_scheme("EE", 1, 1, 900, 10, 0, progress=False, policies={"edges": print})
     with pytest.raises(ConfigError, match="density_vplh"):
         evaluate_scheme("E", 1, 1, 900, 10, 0, progress=False, density_vplh=300)
+
+
+def test_evaluate_rejects_a_corrupt_checkpoint(tmp_path, capsys) -> None:
+    bad = tmp_path / "edge.pt"
+    bad.write_bytes(b"not a checkpoint")
+    code = main(["evaluate", "--scheme", "EE", "--rows", "1", "--cols", "1", "--steps", "5",
+                 "--edge-checkpoint", str(bad), "--no-progress"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--edge-checkpoint" in err and "Traceback" not in err
