@@ -121,3 +121,15 @@ def test_cli_has_train_subcommand():
 
     args = build_parser().parse_args(["train", "--stage", "cloud", "--density", "900", "1500"])
     assert args.stage == "cloud" and args.density == [900.0, 1500.0]
+
+
+def test_shipped_pretrained_policies_load():
+    import numpy as np
+
+    from mivecc_agents.policies import pretrained_policies
+
+    pols = pretrained_policies()
+    for kind, fn in pols.items():
+        k = fn.grid_size
+        a = fn(np.zeros((2, k, k, 3), np.float32), np.ones((2, k), np.float32))
+        assert a.shape == (2, k) and np.all(np.abs(a) <= 3), kind
