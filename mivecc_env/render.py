@@ -313,7 +313,7 @@ def save_heatmaps(
     paths = []
     for name, grid, cmap_name, vmin, vmax, label in plots:
         cmap = matplotlib.colormaps[cmap_name].copy()
-        cmap.set_bad(EMPTY_CELL_COLOR)
+        cmap = cmap.with_extremes(bad=EMPTY_CELL_COLOR)
         fig = Figure(figsize=(6.4, 5.6), dpi=dpi)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()

@@ -1,0 +1,69 @@
+"""Rendering: numpy frames and the velocity / density heat maps."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mivecc_env import mivecc_v0
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.render import SPEED_LUT, heatmap_grids, render_rgb, save_heatmaps
+from mivecc_env.sim.core import Simulator
+
+CFG = MiVeCCConfig(rows=1, cols=1)
+
+
+def one_vehicle(x_lane: int = 0, s: float = 100.0, v: float = 13.0) -> Simulator:
+    sim = Simulator(CFG, seed=0)
+    sim.active[0, 0] = True
+    sim.lane[0, 0], sim.s[0, 0], sim.v[0, 0] = x_lane, s, v
+    sim._refresh_view()
+    return sim
+
+
+def test_empty_frame_shape_and_type() -> None:
+    frame = render_rgb(Simulator(CFG, seed=0))
+    assert frame.shape == (300, 300, 3) and frame.dtype == np.uint8
+
+
+def test_vehicle_drawn_at_its_position_in_its_speed_colour() -> None:
+    sim = one_vehicle(s=100.0, v=13.0)  # eastbound lane of row 0: (100, 145) m
+    frame = render_rgb(sim, px_per_m=1.0)
+    empty = render_rgb(Simulator(CFG, seed=0), px_per_m=1.0)
+    changed = np.argwhere(np.any(frame != empty, axis=-1))
+    rows, cols = changed[:, 0], changed[:, 1]
+    assert abs(cols.mean() - 100) <= 2
+    assert abs((300 - 1 - rows.mean()) - 145) <= 2  # y points up
+    assert tuple(frame[rows[0], cols[0]]) == tuple(SPEED_LUT[-1])  # v_max: top of the ramp
+
+
+def test_heatmap_counts_and_mean_velocity() -> None:
+    sim = Simulator(CFG, seed=3)
+    for _ in range(400):
+        sim.step()
+    velocity, count = heatmap_grids(sim, cell_m=10.0)
+    assert count.sum() == sim.in_network[0]
+    m = sim.active[0]
+    xy = sim.network.xy(sim.lane[0, m], sim.s[0, m])
+    ix, iy = int(xy[0, 0] // 10), int(xy[0, 1] // 10)
+    in_cell = (xy[:, 0] // 10 == ix) & (xy[:, 1] // 10 == iy)
+    assert velocity[iy, ix] == pytest.approx(sim.v[0, m][in_cell].mean())
+    assert np.isnan(velocity[count == 0]).all()
+
+
+def test_heatmap_pngs_written(tmp_path) -> None:
+    sim = Simulator(CFG, seed=0)
+    for _ in range(200):
+        sim.step()
+    paths = save_heatmaps(sim, tmp_path / "hm", title="E 900")
+    assert [p.name for p in paths] == ["hm_velocity.png", "hm_density.png"]
+    for p in paths:
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 5000
+
+
+def test_env_render_returns_a_frame() -> None:
+    env = mivecc_v0.parallel_env(rows=1, cols=1, render_mode="rgb_array", max_steps=10)
+    env.reset(seed=0)
+    frame = env.render()
+    assert frame.shape == (300, 300, 3) and frame.dtype == np.uint8
+    assert mivecc_v0.parallel_env(rows=1, cols=1).render() is None
