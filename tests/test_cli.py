@@ -54,9 +54,19 @@ def test_same_seed_is_deterministic(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_ee_without_policy_warns_zero_actions(capsys: pytest.CaptureFixture[str]) -> None:
-    result, err = _run_json(capsys, "--scheme", "EE")
+    result, err = _run_json(capsys, "--scheme", "EE", "--no-pretrained")
     assert result["coordinator_actions"] == "zero"
     assert "zero coordinator actions" in err and "no trained policy" in err
+
+
+def test_ee_uses_the_shipped_edge_policy(capsys: pytest.CaptureFixture[str]) -> None:
+    from mivecc_agents.policies import pretrained_path
+
+    if pretrained_path("edge") is None:
+        pytest.skip("no shipped edge policy")
+    result, _ = _run_json(capsys, "--scheme", "EE")
+    assert result["coordinator_actions"] == "policy"
+    assert result["edge_checkpoint"].endswith("edge.pt")
 
 
 def test_rule_options_reach_the_config(capsys: pytest.CaptureFixture[str]) -> None:
