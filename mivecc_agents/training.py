@@ -232,6 +232,11 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
     return png_path
 
 
+def _flatten_ray_batch(data: TensorDictBase) -> TensorDictBase:
+    """RayCollector stacks its workers' ``(n_densities, T)`` batches: -> ``(workers*n_dens, T)``."""
+    return data.reshape(-1, data.shape[-1])
+
+
 def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, workers, ray_address):
     from torchrl.collectors import Collector, MultiSyncCollector
 
@@ -244,14 +249,31 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
             ) from exc
         from torchrl.collectors.distributed import RayCollector
 
-        return RayCollector(
-            [env_fn] * max(1, workers),
-            policy,
-            frames_per_batch=frames_per_batch,
-            total_frames=total_frames,
-            ray_init_config={"address": ray_address},
-            sync=True,
-        )
+        n = max(1, workers)
+        if frames_per_batch % n:
+            raise TrainingError(
+                f"ray: {frames_per_batch} frames per batch cannot be split over {n} workers"
+            )
+        # "local": start a fresh single-node Ray instance with enough CPUs for the workers
+        # (each remote collector asks for 1 CPU); "auto" / "host:port" / "ray://..." go to
+        # ray.init(address=...). If ray is already initialised, RayCollector uses that runtime.
+        init: dict[str, Any] = {"address": ray_address}
+        if ray_address == "local":
+            import os
+
+            init.update(num_cpus=max(n, os.cpu_count() or 1), include_dashboard=False)
+        try:
+            return RayCollector(
+                [env_fn] * n,
+                policy,
+                frames_per_batch=frames_per_batch,
+                total_frames=total_frames,
+                ray_init_config=init,
+                sync=True,
+                postproc=_flatten_ray_batch,
+            )
+        except ConnectionError as exc:
+            raise TrainingError(f"cannot connect to Ray at {ray_address!r}: {exc}") from exc
     if workers > 1:
         return MultiSyncCollector(
             [env_fn] * workers,
@@ -300,7 +322,9 @@ def train(
         out_dir: Output folder (``train_log.csv``, ``learning_curve.png``, ``<stage>.pt``).
         resume: Checkpoint of this stage to continue from (frames count continues).
         workers: Collector processes (``MultiSyncCollector`` when > 1).
-        ray_address: Ray cluster address (``RayCollector``; needs ``pip install mivecc[ray]``).
+        ray_address: Collect with ``RayCollector`` (``workers`` remote collectors, 1 CPU each;
+            needs ``pip install mivecc[ray]``): ``"local"`` starts a local Ray instance,
+            ``"auto"``, ``"host:port"`` or ``"ray://host:port"`` connect to a cluster.
         progress: Show a tqdm progress bar.
         edge_checkpoint: Stage II: the stage-I checkpoint (default: shipped pretrained edge).
         config_overrides: Extra env config fields.
@@ -449,6 +473,7 @@ def train(
     writer = csv.DictWriter(fh, fieldnames=fields)
     if write_header:
         writer.writeheader()
+    tb = _tensorboard_writer(out_dir)
 
     ckpt_path = out_dir / f"{stage}.pt"
     meta = {
@@ -551,6 +576,10 @@ def train(
                 episodes = int(metrics["episodes"])
                 writer.writerow(metrics)
                 fh.flush()
+                if tb is not None:
+                    for key, value in metrics.items():
+                        if isinstance(value, int | float) and key not in ("iteration", "frames"):
+                            tb.add_scalar(f"{stage}/{key}", value, int(metrics["frames"]))
                 bar.update(n)
                 bar.set_postfix(
                     v=f"{metrics['avg_velocity_mps']:.2f}", qloss=f"{metrics['critic_loss']:.3g}"
@@ -562,12 +591,23 @@ def train(
             collector.shutdown()
             bar.close()
             fh.close()
+            if tb is not None:
+                tb.close()
     else:
         bar.close()
         fh.close()
     path = _save(metrics)
     plot_learning_curve(csv_path, out_dir / "learning_curve.png")
     return path
+
+
+def _tensorboard_writer(out_dir: Path) -> Any:
+    """A TensorBoard ``SummaryWriter`` logging to ``out_dir/tb`` if tensorboard is installed."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:  # tensorboard is optional: the CSV log is always written
+        return None
+    return SummaryWriter(log_dir=str(out_dir / "tb"))
 
 
 def _config_dict(overrides: dict[str, Any], scheme: str, dens: list[float]) -> dict[str, Any]:

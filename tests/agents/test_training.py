@@ -76,6 +76,12 @@ def test_edge_stage_trains(edge_run):
     assert math.isfinite(ck["metrics"]["critic_loss"])
     assert math.isfinite(ck["metrics"]["actor_loss"])
     assert (out / "train_log.csv").is_file() and (out / "learning_curve.png").is_file()
+    try:
+        import tensorboard  # noqa: F401
+    except ImportError:
+        pass
+    else:  # optional TensorBoard log next to the CSV
+        assert any((out / "tb").glob("events.out.tfevents.*"))
     header = (out / "train_log.csv").read_text().splitlines()[0]
     for col in (
         "frames",
