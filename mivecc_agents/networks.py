@@ -303,7 +303,25 @@ def _conv_features(convs: nn.Module, observation: torch.Tensor, spec: NetworkSpe
     return convs(x).reshape(*batch_shape, spec.flattened_size)
 
 
-class MiVeCCActorNet(nn.Module):
+class _ConvNode(nn.Module):
+    """Shared part of the actor and the critic: a convolution stack over the state graph."""
+
+    spec: NetworkSpec
+    convs: nn.Module
+
+    def features(self, observation: torch.Tensor) -> torch.Tensor:
+        """Flattened convolution features.
+
+        Args:
+            observation: State graphs ``(..., K, K, 3)``, channel-last.
+
+        Returns:
+            Features ``(..., flattened_size)``.
+        """
+        return _conv_features(self.convs, observation, self.spec)
+
+
+class MiVeCCActorNet(_ConvNode):
     """Deterministic actor: state graph -> one acceleration [m/s^2] per column.
 
     ``observation (..., K, K, 3) -> convs -> flatten -> dense (tanh) ... -> 3 * tanh -> * mask``.
@@ -343,17 +361,6 @@ class MiVeCCActorNet(nn.Module):
         """The last dense layer (initialised in +-3e-3)."""
         return _last_linear(self.mlp)
 
-    def features(self, observation: torch.Tensor) -> torch.Tensor:
-        """Flattened convolution features.
-
-        Args:
-            observation: State graphs ``(..., K, K, 3)``, channel-last.
-
-        Returns:
-            Features ``(..., flattened_size)``.
-        """
-        return _conv_features(self.convs, observation, self.spec)
-
     def forward(self, observation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Compute the accelerations of the decision vehicles.
 
@@ -369,7 +376,7 @@ class MiVeCCActorNet(nn.Module):
         return action * mask.to(action.dtype)
 
 
-class MiVeCCCriticNet(nn.Module):
+class MiVeCCCriticNet(_ConvNode):
     """Q-network: (state graph, action set) -> state-action value.
 
     ``observation -> convs -> flatten -> concat(features, action * mask) ->
@@ -393,17 +400,6 @@ class MiVeCCCriticNet(nn.Module):
             norm_kwargs=[{"normalized_shape": n} for n in spec.critic_hidden],
             device=device,
         )
-
-    def features(self, observation: torch.Tensor) -> torch.Tensor:
-        """Flattened convolution features.
-
-        Args:
-            observation: State graphs ``(..., K, K, 3)``, channel-last.
-
-        Returns:
-            Features ``(..., flattened_size)``.
-        """
-        return _conv_features(self.convs, observation, self.spec)
 
     def forward(
         self, observation: torch.Tensor, action: torch.Tensor, mask: torch.Tensor
