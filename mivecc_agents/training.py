@@ -263,7 +263,7 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
 
             init.update(num_cpus=max(n, os.cpu_count() or 1), include_dashboard=False)
         try:
-            return RayCollector(
+            collector = RayCollector(
                 [env_fn] * n,
                 policy,
                 frames_per_batch=frames_per_batch,
@@ -274,6 +274,8 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
             )
         except ConnectionError as exc:
             raise TrainingError(f"cannot connect to Ray at {ray_address!r}: {exc}") from exc
+        collector.update_policy_weights_()  # connect the weight sync before the first batch
+        return collector
     if workers > 1:
         return MultiSyncCollector(
             [env_fn] * workers,
