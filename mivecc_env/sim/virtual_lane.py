@@ -96,6 +96,26 @@ def sort_by_group_and_position(group: IntArray, pos: FloatArray) -> IntArray:
     return order[np.argsort(group[order].astype(np.uint16), kind="stable")]
 
 
+def _candidate_conflict_columns(
+    network: GridNetwork, window_m: float, clear_m: float, s: FloatArray
+) -> IntArray | None:
+    """(n, 2) columns of ``lane_cp_s`` of the only intersection whose window can hold ``s``.
+
+    Conflict points sit at ``centre +- lane_offset`` with centres every segment; when the
+    windows ``[cp - window, cp + clear]`` of neighbouring intersections cannot overlap, a point
+    can only be near the two conflict points of the first centre with ``centre + offset +
+    clear >= s``. Returns None when they can overlap (the caller then tests every point).
+    """
+    seg, off = network.segment_length_m, network.lane_offset_m
+    if window_m + clear_m + 2.0 * off >= seg:
+        return None
+    n_on = network.lane_centres_s.shape[1]
+    k = np.ceil((s - clear_m - off) / seg).astype(np.int64) - 1  # 0-based centre index
+    np.minimum(np.maximum(k, 0, out=k), n_on - 1, out=k)
+    first = 2 * k
+    return np.stack([first, first + 1], axis=1)
+
+
 def build_view(
     network: GridNetwork,
     window_m: float,
@@ -123,10 +143,16 @@ def build_view(
     n_lanes = network.n_lanes
 
     # Projections of every vehicle onto the lanes it crosses near a conflict point.
-    delta = v_s[:, None] - network.lane_cp_s[v_lane]  # (n, n_cp_lane); inf padding
-    near_v, near_c = np.nonzero((delta >= -window_m) & (delta <= clear_m))
+    cp_col = _candidate_conflict_columns(network, window_m, clear_m, v_s)
+    if cp_col is None:  # windows of neighbouring intersections overlap: test every point
+        cp_s = network.lane_cp_s[v_lane]  # (n, n_cp_lane); inf padding
+    else:  # only the two conflict points of the one intersection in range
+        cp_s = network.lane_cp_s[v_lane[:, None], cp_col]
+    delta = v_s[:, None] - cp_s
+    near_v, near_k = np.nonzero((delta >= -window_m) & (delta <= clear_m))
+    near_c = near_k if cp_col is None else cp_col[near_v, near_k]
     other_lane = network.lane_cp_other_lane[v_lane[near_v], near_c]
-    proj_pos = network.lane_cp_other_s[v_lane[near_v], near_c] + delta[near_v, near_c]
+    proj_pos = network.lane_cp_other_s[v_lane[near_v], near_c] + delta[near_v, near_k]
 
     group = np.concatenate([env * n_lanes + v_lane, env[near_v] * n_lanes + other_lane])
     pos = np.concatenate([v_s, proj_pos])
