@@ -286,7 +286,9 @@ def save_heatmaps(
     """
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import BoundaryNorm, ListedColormap, Normalize
     from matplotlib.figure import Figure
+    from mpl_toolkits.axes_grid1 import make_axes_locatable
 
     prefix = pathlib.Path(path_prefix)
     prefix.parent.mkdir(parents=True, exist_ok=True)
@@ -299,26 +301,34 @@ def save_heatmaps(
     info = f"t = {sim.time_s:.1f} s, {n_veh} vehicles in network, {cell_m:g} m cells"
     full_title = f"{title}\n{info}" if title else info
 
+    velocity_cmap = matplotlib.colormaps["RdYlGn"].with_extremes(bad=EMPTY_CELL_COLOR)
+    # YlOrRd without its palest quarter, so that one vehicle stands out from the background
+    density_cmap = ListedColormap(
+        matplotlib.colormaps["YlOrRd"](np.linspace(0.25, 1.0, 256))
+    ).with_extremes(bad=EMPTY_CELL_COLOR)
+    dens_ticks = None
     if density == "count":
         dens_label = f"vehicles per cell ({cell_m:g} m x {cell_m:g} m)"
-        dens_max = max(1.0, float(np.nanmax(dens)) if dens.size else 1.0)
+        n_max = max(1, int(np.nanmax(dens)) if dens.size else 1)
+        dens_norm = BoundaryNorm(np.arange(n_max + 1) + 0.5, density_cmap.N)
+        dens_ticks = np.arange(1, n_max + 1)[:: max(1, n_max // 10)]
     else:
         dens_label = "density [veh/km of lane]"
         finite = dens[np.isfinite(dens)]
-        dens_max = max(1.0, float(finite.max()) if finite.size else 1.0)
+        dens_norm = Normalize(0.0, max(1.0, float(finite.max()) if finite.size else 1.0))
     plots = (
-        ("velocity", velocity, "RdYlGn", 0.0, cfg.v_max_mps, "mean velocity [m/s]"),
-        ("density", np.where(dens > 0, dens, np.nan), "YlOrRd", 0.0, dens_max, dens_label),
+        ("velocity", velocity, velocity_cmap, Normalize(0.0, cfg.v_max_mps),
+         "mean velocity [m/s]", None),
+        ("density", np.where(dens > 0, dens, np.nan), density_cmap, dens_norm, dens_label,
+         dens_ticks),
     )
     paths = []
-    for name, grid, cmap_name, vmin, vmax, label in plots:
-        cmap = matplotlib.colormaps[cmap_name].copy()
-        cmap = cmap.with_extremes(bad=EMPTY_CELL_COLOR)
-        fig = Figure(figsize=(6.4, 5.6), dpi=dpi)
+    for name, grid, cmap, norm, label, ticks in plots:
+        fig = Figure(figsize=(6.4, min(9.0, 1.6 + 4.6 * height_m / width_m)), dpi=dpi)
         FigureCanvasAgg(fig)
         ax = fig.add_subplot()
         im = ax.imshow(np.ma.masked_invalid(grid), origin="lower", extent=extent, cmap=cmap,
-                       vmin=vmin, vmax=vmax, interpolation="nearest", aspect="equal")
+                       norm=norm, interpolation="nearest", aspect="equal")
         seg = network.segment_length_m
         for k in range(network.rows):
             ax.axhline((k + 1) * seg, color="white", lw=0.4, alpha=0.25, zorder=0.5)
@@ -329,7 +339,8 @@ def save_heatmaps(
         ax.set_xlabel("x (east) [m]")
         ax.set_ylabel("y (north) [m]")
         ax.set_title(f"{name}: {full_title}", fontsize=9)
-        cbar = fig.colorbar(im, ax=ax, shrink=0.85)
+        cax = make_axes_locatable(ax).append_axes("right", size="4%", pad=0.12)
+        cbar = fig.colorbar(im, cax=cax, ticks=ticks)
         cbar.set_label(label)
         ax.text(1.0, -0.11, "purple: no vehicle", transform=ax.transAxes, ha="right",
                 va="top", fontsize=7, color=EMPTY_CELL_COLOR)

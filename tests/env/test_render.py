@@ -67,3 +67,65 @@ def test_env_render_returns_a_frame() -> None:
     frame = env.render()
     assert frame.shape == (300, 300, 3) and frame.dtype == np.uint8
     assert mivecc_v0.parallel_env(rows=1, cols=1).render() is None
+
+
+def test_frame_size_follows_grid_and_scale() -> None:
+    sim = Simulator(MiVeCCConfig(rows=3, cols=3), seed=0)
+    assert render_rgb(sim).shape == (600, 600, 3)
+    assert render_rgb(sim, px_per_m=2.0).shape == (1200, 1200, 3)
+    assert render_rgb(Simulator(MiVeCCConfig(rows=1, cols=2), seed=0)).shape == (300, 450, 3)
+    with pytest.raises(ValueError, match="px_per_m"):
+        render_rgb(sim, px_per_m=0.0)
+
+
+def test_vehicle_square_has_minimum_size_and_background_is_not_mutated() -> None:
+    empty_before = render_rgb(Simulator(CFG, seed=0), px_per_m=0.5)
+    frame = render_rgb(one_vehicle(s=100.0), px_per_m=0.5)
+    changed = np.any(frame != empty_before, axis=-1)
+    assert changed.sum() == 9  # 2 m at 0.5 px/m is below the 3 px minimum
+    empty_after = render_rgb(Simulator(CFG, seed=0), px_per_m=0.5)
+    assert np.array_equal(empty_before, empty_after)
+
+
+def test_speed_colours_red_to_green() -> None:
+    stopped = render_rgb(one_vehicle(s=100.0, v=0.0))
+    slow = render_rgb(one_vehicle(s=100.0, v=CFG.v_min_mps))
+    row, col = 300 - 1 - 145, 100
+    assert tuple(stopped[row, col]) == tuple(SPEED_LUT[0])
+    assert tuple(slow[row, col]) == tuple(SPEED_LUT[128])
+    assert stopped[row, col, 0] > stopped[row, col, 1]  # red
+    assert SPEED_LUT[-1, 1] > SPEED_LUT[-1, 0]  # green
+
+
+def test_vehicles_on_the_network_edge_are_clipped() -> None:
+    sim = one_vehicle(s=float(CFG.segment_length_m * 2) - 1e-6)
+    frame = render_rgb(sim)
+    assert frame.shape == (300, 300, 3)
+    _, count = heatmap_grids(sim)
+    assert count.sum() == 1 and count[14, -1] == 1  # y = 145 m -> row 14, last column
+
+
+def test_empty_heatmaps_and_lane_density_units(tmp_path) -> None:
+    velocity, count = heatmap_grids(Simulator(CFG, seed=0), cell_m=10.0)
+    assert velocity.shape == count.shape == (30, 30)
+    assert np.isnan(velocity).all() and not count.any()
+    assert len(save_heatmaps(Simulator(CFG, seed=0), tmp_path / "empty")) == 2
+    _, per_km = heatmap_grids(one_vehicle(s=100.0), cell_m=10.0, density="veh_per_km")
+    assert per_km[14, 10] == pytest.approx(100.0)  # one vehicle on 10 m of one lane
+    assert np.isnan(per_km[0, 0])  # no lane passes the corner cell
+    with pytest.raises(ValueError, match="cell_m"):
+        heatmap_grids(Simulator(CFG, seed=0), cell_m=0.0)
+
+
+def test_heatmaps_script_writes_pngs(tmp_path) -> None:
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[2] / "benchmarks" / "heatmaps.py"
+    spec = importlib.util.spec_from_file_location("heatmaps_script", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    paths = module.main(["--rows", "1", "--cols", "1", "--steps", "30", "--out",
+                         str(tmp_path)])
+    assert len(paths) == 6 and all(p.stat().st_size > 1000 for p in paths)
+    assert {p.name for p in paths} >= {"signalized_frame.png", "unsignalized_E_density.png"}
