@@ -233,8 +233,9 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
 
 
 def _flatten_ray_batch(data: TensorDictBase) -> TensorDictBase:
-    """RayCollector stacks its workers' ``(n_densities, T)`` batches: -> ``(workers*n_dens, T)``."""
-    return data.reshape(-1, data.shape[-1])
+    """RayCollector stacks its workers' ``(n_densities, T)`` batches into ``(workers, n_dens,
+    T)``: join the workers along time -> ``(n_densities, workers*T)``, the local layout."""
+    return torch.cat(data.unbind(0), dim=1) if data.shape[0] > 1 else data[0]
 
 
 def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, workers, ray_address):

@@ -108,8 +108,9 @@ def test_edge_stage_trains_on_local_ray(ray_mod, tmp_path):
 
 @pytest.mark.ray
 @pytest.mark.slow
-def test_ray_collector_syncs_weights_and_noise(ray_mod):
-    """update_policy_weights_() (called by train after each update) reaches the remote actor."""
+def test_ray_collector_two_workers_sync_weights_and_noise(ray_mod):
+    """Two remote collectors: the batch has the local ``(n_densities, T)`` layout, and
+    update_policy_weights_() (called by train after each update) reaches both of them."""
     from torchrl.modules import AdditiveGaussianModule
 
     from mivecc_agents.networks import make_actor
@@ -134,23 +135,25 @@ def test_ray_collector_syncs_weights_and_noise(ray_mod):
     )
     policy = make_policy("edge", actor, noise)
     env_fn = partial(_make_batched_env, [1500.0, 2100.0], overrides, "EE")
-    collector = _make_collector(env_fn, policy, 100, 200, 1, "local")
+    collector = _make_collector(env_fn, policy, 100, 200, 2, "local")
     try:
-        remote = collector.remote_collectors[0]
+        assert len(collector.remote_collectors) == 2
         for data in collector:
-            # two density envs, one worker: same (n_densities, T) layout as the local Collector
+            # 2 workers x 2 density envs x 25 steps, joined along time per density
             assert data.batch_size == (2, 50)
+            assert data["next", "edge", "reward"].isfinite().all()
             with torch.no_grad():
                 for p in actor.parameters():
                     p.add_(0.5)
             noise.step(50)
             collector.update_policy_weights_()
-            remote_sd = ray_mod.get(remote.state_dict.remote())["policy_state_dict"]
             local_sd = policy.state_dict()
-            assert local_sd.keys() == remote_sd.keys()
-            for k, v in local_sd.items():
-                torch.testing.assert_close(remote_sd[k], v, msg=k)
-        assert float(remote_sd["module.1.sigma"]) == pytest.approx(float(noise.sigma))
+            for remote in collector.remote_collectors:
+                remote_sd = ray_mod.get(remote.state_dict.remote())["policy_state_dict"]
+                assert local_sd.keys() == remote_sd.keys()
+                for k, v in local_sd.items():
+                    torch.testing.assert_close(remote_sd[k], v, msg=k)
+                assert float(remote_sd["module.1.sigma"]) == pytest.approx(float(noise.sigma))
     finally:
         collector.shutdown()
     assert not ray_mod.is_initialized()
