@@ -56,6 +56,19 @@ def _run(job: tuple[str, int, int, float, int, int, str | None, str | None]) -> 
                            progress=False, warn=False)
 
 
+def _read_csv(path: Path) -> list[dict[str, Any]]:
+    """Rows of an earlier run's CSV with the numeric columns parsed."""
+    def parse(value: str) -> Any:
+        try:
+            number = float(value)
+        except ValueError:
+            return value
+        return int(number) if number.is_integer() and "." not in value else number
+
+    with open(path, newline="") as fh:
+        return [{k: parse(v) for k, v in row.items()} for row in csv.DictReader(fh)]
+
+
 def improvement(new: float, old: float) -> float:
     """Relative improvement of ``new`` over ``old`` [%]."""
     return 100.0 * (new - old) / old if old > 0 else float("nan")
@@ -139,6 +152,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser.add_argument("--cloud", default=None, help="cloud checkpoint (default: shipped)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
+    parser.add_argument("--from-csv", type=Path, nargs="+", default=None,
+                        help="build the tables from earlier runs' paper_table.csv files "
+                        "(e.g. one run per scheme) instead of running episodes")
     args = parser.parse_args(argv)
 
     jobs = []
@@ -146,16 +162,18 @@ def main(argv: Sequence[str] | None = None) -> Path:
         r, c = (int(x) for x in grid.split("x"))
         for scheme, density, seed in itertools.product(args.schemes, args.densities, args.seeds):
             jobs.append((scheme, r, c, density, args.steps, seed, args.edge, args.cloud))
-    if args.workers > 1:
+    if args.from_csv:
+        rows = [row for path in args.from_csv for row in _read_csv(path)]
+    elif args.workers > 1:
         with mp.get_context("spawn").Pool(args.workers) as pool:
             rows = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="episodes"))
     else:
         rows = [_run(j) for j in tqdm(jobs, desc="episodes")]
 
     args.out.mkdir(parents=True, exist_ok=True)
-    keys = list(rows[0])
+    keys = list(dict.fromkeys(k for row in rows for k in row))
     with open(args.out / "paper_table.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys)
+        writer = csv.DictWriter(fh, fieldnames=keys, restval="")
         writer.writeheader()
         writer.writerows(rows)
     command = "python benchmarks/paper_table.py " + " ".join(argv if argv is not None else
