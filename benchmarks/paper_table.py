@@ -43,6 +43,9 @@ COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"))
 
 
 def _run(job: tuple[str, int, int, float, int, int, str | None, str | None]) -> dict[str, Any]:
+    import os
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per episode
     from mivecc_agents.evaluation import evaluate_scheme
     from mivecc_agents.policies import load_policy, pretrained_policies
 

@@ -256,6 +256,10 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Run ``mivecc train`` (imports torch only now)."""
+    # OpenMP reads its thread count when torch is first imported; torch.set_num_threads later
+    # does not reach every thread, and oversubscribed cores slowed training ~10x (measured).
+    if getattr(args, "threads", None):
+        os.environ.setdefault("OMP_NUM_THREADS", str(args.threads))
     from mivecc_agents.training import train_from_args
 
     return train_from_args(args)
