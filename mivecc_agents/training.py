@@ -21,6 +21,7 @@ mean of DDPGLoss is already the right loss, no masked reduction is needed.
 from __future__ import annotations
 
 import csv
+import inspect
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -293,7 +294,18 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
     )
 
 
-def train(
+def train(*args: Any, **kwargs: Any) -> Path:
+    """Train one stage (see :func:`_train` for the arguments); returns the final checkpoint.
+
+    TorchRL's exploration noise, replay sampling and network initialisation draw from torch's
+    global generator, so training runs inside ``torch.random.fork_rng``: it is seeded with
+    ``seed`` there and the caller's global random state is restored afterwards.
+    """
+    with torch.random.fork_rng(devices=[]):
+        return _train(*args, **kwargs)
+
+
+def _train(
     stage: str = "edge",
     preset: str | TrainPreset = DEFAULT_PRESET,
     frames: int | None = None,
@@ -716,3 +728,6 @@ def train_from_args(args) -> int:
         return 2
     print(path)
     return 0
+
+
+train.__signature__ = inspect.signature(_train)  # type: ignore[attr-defined]

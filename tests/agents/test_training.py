@@ -192,3 +192,16 @@ def test_presets_and_errors(tmp_path):
         except ImportError:
             pass
         train("edge", TINY, frames=50, out_dir=tmp_path, ray_address="auto", progress=False)
+
+
+def test_training_leaves_the_global_torch_rng_alone(tmp_path):
+    import torch
+
+    from mivecc_agents.training import train
+
+    torch.manual_seed(1234)
+    expected = torch.rand(3)
+    torch.manual_seed(1234)
+    train("edge", frames=100, rows=1, cols=1, densities=900, seed=0, out_dir=tmp_path,
+          progress=False, episode_steps=50, buffer_size=200)
+    assert torch.equal(torch.rand(3), expected)
