@@ -1,0 +1,42 @@
+"""Smoke runs of the experiment scripts in benchmarks/ (tiny settings, real work)."""
+
+from __future__ import annotations
+
+import csv
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+
+import paper_table
+import rules_study
+
+
+def test_rules_study_writes_its_table(tmp_path: Path) -> None:
+    rows = rules_study.main(["--rows", "1", "--cols", "1", "--densities", "900", "--seeds", "0",
+                             "--steps", "300", "--readings", "sensible/acc=ego",
+                             "literal/acc=ego", "--out", str(tmp_path)])
+    assert [r["reading"] for r in rows] == ["sensible/acc=ego", "literal/acc=ego"]
+    assert all(r["arrived_total"] > 0 for r in rows)
+    assert (tmp_path / "rules_study.md").read_text().count("| ") > 4
+
+
+def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
+    out = paper_table.main(["--grids", "1x1", "--densities", "1500", "--schemes", "E", "EE",
+                            "--seeds", "0", "--steps", "400", "--workers", "1",
+                            "--out", str(tmp_path / "a")])
+    with open(out / "paper_table.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert {r["scheme"] for r in rows} == {"E", "EE"}
+    assert (out / "velocity_vs_density_1x1.png").stat().st_size > 5000
+    merged = paper_table.main(["--grids", "1x1", "--out", str(tmp_path / "b"), "--from-csv",
+                               str(out / "paper_table.csv")])
+    text = (merged / "paper_table.md").read_text()
+    assert "EE vs E [%]" in text and "| 1500 |" in text
+
+
+@pytest.mark.parametrize("new, old, expected", [(11.0, 10.0, 10.0), (9.0, 10.0, -10.0)])
+def test_improvement_rate(new: float, old: float, expected: float) -> None:
+    assert paper_table.improvement(new, old) == pytest.approx(expected)
