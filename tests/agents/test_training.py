@@ -205,3 +205,15 @@ def test_training_leaves_the_global_torch_rng_alone(tmp_path):
     train("edge", frames=100, rows=1, cols=1, densities=900, seed=0, out_dir=tmp_path,
           progress=False, episode_steps=50, buffer_size=200)
     assert torch.equal(torch.rand(3), expected)
+
+
+@pytest.mark.slow
+def test_two_collector_processes_train(tmp_path):
+    """workers=2: MultiSyncCollector (two processes) feeds the same training loop."""
+    from mivecc_agents.checkpoints import load_checkpoint
+    from mivecc_agents.training import train
+
+    path = train("edge", frames=800, rows=1, cols=1, densities=900, seed=0, out_dir=tmp_path,
+                 workers=2, progress=False, episode_steps=100, buffer_size=500)
+    ckpt = load_checkpoint(path, expected_kind="edge")
+    assert ckpt["frames"] >= 800 and ckpt["updates"] > 0  # past the 480-frame warm-up
