@@ -571,22 +571,22 @@ def _train(
                     collector.update_policy_weights_()
                 metrics = _metrics(
                     data,
-                    group,
-                    dens,
-                    state,
-                    episodes,
-                    cl,
-                    al,
-                    qm,
-                    optim,
-                    noise,
-                    n,
-                    n_upd,
-                    t_col,
-                    t_opt,
-                    len(buffer),
-                    time.perf_counter() - t0,
-                    p.batch_size,
+                    group=group,
+                    densities=dens,
+                    state=state,
+                    episodes=episodes,
+                    critic_losses=cl,
+                    actor_losses=al,
+                    q_means=qm,
+                    optimizer=optim,
+                    noise=noise,
+                    frames_in_batch=n,
+                    n_updates=n_upd,
+                    collect_s=t_col,
+                    optimise_s=t_opt,
+                    buffer_len=len(buffer),
+                    wall_s=time.perf_counter() - t0,
+                    batch_size=p.batch_size,
                 )
                 episodes = int(metrics["episodes"])
                 writer.writerow(metrics)
@@ -637,22 +637,23 @@ def _mean(xs: list[torch.Tensor]) -> float:
 
 def _metrics(
     data: TensorDictBase,
-    group,
-    dens,
-    state,
-    episodes,
-    cl,
-    al,
-    qm,
-    optim,
-    noise,
-    n,
-    n_upd,
-    t_col,
-    t_opt,
-    buf_len,
-    wall,
-    batch_size,
+    *,
+    group: str,
+    densities: list[float],
+    state: dict[str, int],
+    episodes: int,
+    critic_losses: list[torch.Tensor],
+    actor_losses: list[torch.Tensor],
+    q_means: list[torch.Tensor],
+    optimizer: torch.optim.Optimizer,
+    noise: Any,
+    frames_in_batch: int,
+    n_updates: int,
+    collect_s: float,
+    optimise_s: float,
+    buffer_len: int,
+    wall_s: float,
+    batch_size: int,
 ) -> dict[str, float]:
     """One CSV row. ``data`` has batch dims ``(n_densities, T)`` (or flattened by workers)."""
     nxt = data["next"]
@@ -667,35 +668,34 @@ def _metrics(
         "reward_mean": float(reward.mean()),
         "episode_reward": math.nan,
         "collisions": float(coll.reshape(-1, coll.shape[-1])[:, 0].max()),
-        "critic_loss": _mean(cl),
-        "actor_loss": _mean(al),
-        "q_mean": _mean(qm),
-        "lr_actor": optim.param_groups[0]["lr"],
-        "lr_critic": optim.param_groups[1]["lr"],
+        "critic_loss": _mean(critic_losses),
+        "actor_loss": _mean(actor_losses),
+        "q_mean": _mean(q_means),
+        "lr_actor": optimizer.param_groups[0]["lr"],
+        "lr_critic": optimizer.param_groups[1]["lr"],
         "sigma": float(noise.sigma),
-        "updates": n_upd,
-        "fps_collect": n / max(t_col, 1e-9),
-        "fps_optim": n_upd * batch_size / max(t_opt, 1e-9) if n_upd else math.nan,
-        "buffer": buf_len,
-        "wall_s": wall,
+        "updates": n_updates,
+        "fps_collect": frames_in_batch / max(collect_s, 1e-9),
+        "fps_optim": n_updates * batch_size / max(optimise_s, 1e-9) if n_updates else math.nan,
+        "buffer": buffer_len,
+        "wall_s": wall_s,
     }
     # per density: the running episode value at the last step of the batch, and the final
     # value of the last episode that ended in this batch (NaN if none ended)
-    if vel.ndim >= 3 and vel.shape[0] == len(dens):
+    if vel.ndim >= 3 and vel.shape[0] == len(densities):
         per_d = vel[..., 0]  # (n_densities, T)
         done_d = nxt["done"].reshape(per_d.shape)
     else:
-        per_d = vel.reshape(-1, vel.shape[-1])[:, 0].unsqueeze(0).expand(len(dens), -1)
-        done_d = done.unsqueeze(0).expand(len(dens), -1)
-    for i, d in enumerate(dens):
+        per_d = vel.reshape(-1, vel.shape[-1])[:, 0].unsqueeze(0).expand(len(densities), -1)
+        done_d = done.unsqueeze(0).expand(len(densities), -1)
+    for i, d in enumerate(densities):
         row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_d[i, -1])
         ends = torch.nonzero(done_d[i]).flatten()
         row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
             float(per_d[i, ends[-1]]) if ends.numel() else math.nan
         )
-    row["avg_velocity_mps"] = sum(row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in dens) / len(
-        dens
-    )
+    per_density = [row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in densities]
+    row["avg_velocity_mps"] = sum(per_density) / len(densities)
     if done.any():
         ep = nxt[group, "episode_reward"]  # (..., n_agents, 1), summed by RewardSum
         ep = ep.reshape(done.shape[0], -1)[done]
