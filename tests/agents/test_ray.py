@@ -11,7 +11,6 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-import warnings
 from functools import partial
 
 import pytest
@@ -20,24 +19,8 @@ import torch
 pytest.importorskip("torchrl")
 
 from mivecc_agents.checkpoints import load_checkpoint
-from mivecc_agents.presets import get_preset
 from mivecc_agents.training import TrainingError, train
-
-TINY = get_preset("stable").replace(
-    name="tiny",
-    frames_per_batch=50,
-    warmup_frames=48,
-    updates_per_frame=0.1,
-    episode_steps=120,
-    buffer_size=500,
-)
-
-
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
+from tests.agents.tiny import TINY
 
 
 @pytest.fixture

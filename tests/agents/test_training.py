@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import warnings
 
 import numpy as np
 import pytest
@@ -15,22 +14,7 @@ from mivecc_agents.checkpoints import load_checkpoint
 from mivecc_agents.policies import load_policy
 from mivecc_agents.presets import PRESETS, get_preset
 from mivecc_agents.training import make_env, train
-
-TINY = get_preset("stable").replace(
-    name="tiny",
-    frames_per_batch=50,
-    warmup_frames=48,
-    updates_per_frame=0.1,
-    episode_steps=120,
-    buffer_size=500,
-)
-
-
-@pytest.fixture(autouse=True)
-def _quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        yield
+from tests.agents.tiny import TINY
 
 
 @pytest.fixture(scope="module")
