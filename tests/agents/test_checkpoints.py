@@ -133,3 +133,24 @@ def test_shipped_pretrained_policies_load():
         k = fn.grid_size
         a = fn(np.zeros((2, k, k, 3), np.float32), np.ones((2, k), np.float32))
         assert a.shape == (2, k) and np.all(np.abs(a) <= 3), kind
+
+
+def test_evaluation_with_a_checkpoint_is_deterministic():
+    """Same shipped checkpoints and seed -> identical metrics for EE and EEC."""
+    from mivecc_agents.evaluation import evaluate_scheme
+    from mivecc_agents.policies import pretrained_policies
+
+    policies = pretrained_policies()
+    if set(policies) != {"edge", "cloud"}:
+        pytest.skip("shipped policies missing")
+    for scheme in ("EE", "EEC"):
+        runs = [evaluate_scheme(scheme, 1, 1, 1500, 400, 7, policies=policies, progress=False)
+                for _ in range(2)]
+        assert runs[0]["coordinator_actions"] == "policy"
+        skip = {"steps_per_s", "wall_s"}
+        assert {k: v for k, v in runs[0].items() if k not in skip} == {
+            k: v for k, v in runs[1].items() if k not in skip}
+    # and the policy does act: EE differs from E on the same seed
+    e = evaluate_scheme("E", 1, 1, 1500, 400, 7, progress=False)
+    ee = evaluate_scheme("EE", 1, 1, 1500, 400, 7, policies=policies, progress=False)
+    assert e["mean_speed_mps"] != ee["mean_speed_mps"]
