@@ -165,6 +165,22 @@ def make_policy(
     return TensorDictSequential(*mods)
 
 
+def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
+    """DDPG loss of one agent group: target actor and critic, per-group keys, TD(0)."""
+    from torchrl.objectives import DDPGLoss, ValueEstimators
+
+    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
+    loss.set_keys(
+        state_action_value=(group, "state_action_value"),
+        reward=(group, "reward"),
+        done=(group, "done"),
+        terminated=(group, "terminated"),
+        priority=(group, "td_error"),  # one priority key per group, not a shared root key
+    )
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=gamma)
+    return loss
+
+
 def load_frozen_edge_actor(path: str | Path) -> TensorDictModule:
     """Load the stage-I edge actor, frozen (no grad, eval)."""
     ckpt = load_checkpoint(path, expected_kind="edge")
@@ -352,7 +368,7 @@ def _train(
     """
     from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
     from torchrl.modules import AdditiveGaussianModule
-    from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
+    from torchrl.objectives import SoftUpdate
     from tqdm.auto import tqdm
 
     if stage not in STAGES:
@@ -398,15 +414,7 @@ def _train(
         edge_ckpt_path = str(edge_checkpoint)
         frozen_edge = load_frozen_edge_actor(edge_checkpoint)
 
-    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
-    loss.set_keys(
-        state_action_value=(group, "state_action_value"),
-        reward=(group, "reward"),
-        done=(group, "done"),
-        terminated=(group, "terminated"),
-        priority=(group, "td_error"),
-    )
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=p.gamma)
+    loss = make_loss(actor, critic, group, p.gamma)
     updater = SoftUpdate(loss, tau=p.tau)
     actor_params = list(actor.parameters())
     critic_params = list(critic.parameters())

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -65,17 +67,7 @@ def test_specs_match_paper_table() -> None:
 
 def test_spec_rejects_inconsistent_flattened_size() -> None:
     with pytest.raises(ValueError, match="flattened"):
-        NetworkSpec(
-            kind="edge",
-            grid_size=15,
-            in_channels=3,
-            conv_filters=(32, 16),
-            kernel_size=3,
-            stride=2,
-            flattened_size=145,
-            actor_layers=(96, 96, 15),
-            critic_layers=(96, 96, 48, 12, 1),
-        )
+        dataclasses.replace(EDGE_SPEC, flattened_size=145)
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -340,7 +332,6 @@ def test_tensordict_wrappers(kind: str, n_agents: int) -> None:
 
 @pytest.mark.filterwarnings("ignore:No target network updater")
 def test_wrappers_work_in_ddpg_loss() -> None:
-    from torchrl.objectives import DDPGLoss, ValueEstimators
 
     batch, n_agents, group = 4, 9, "edge"
     actor, critic = make_actor("edge", group), make_critic("edge", group)
@@ -357,15 +348,9 @@ def test_wrappers_work_in_ddpg_loss() -> None:
     td["next", group, "reward"] = torch.ones(batch, n_agents, 1)
     td["next", group, "done"] = torch.zeros(batch, n_agents, 1, dtype=torch.bool)
     td["next", group, "terminated"] = torch.zeros(batch, n_agents, 1, dtype=torch.bool)
-    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
-    loss.set_keys(
-        state_action_value=(group, "state_action_value"),
-        reward=(group, "reward"),
-        done=(group, "done"),
-        terminated=(group, "terminated"),
-        priority=(group, "td_error"),
-    )
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=0.8)
+    from mivecc_agents.training import make_loss
+
+    loss = make_loss(actor, critic, group, gamma=0.8)
     out = loss(td)
     (out["loss_actor"] + out["loss_value"]).backward()
     assert torch.isfinite(out["loss_actor"]) and torch.isfinite(out["loss_value"])

@@ -20,7 +20,7 @@ pytest.importorskip("torchrl")
 
 from mivecc_agents.checkpoints import load_checkpoint
 from mivecc_agents.training import TrainingError, train
-from tests.agents.tiny import TINY
+from tests.agents.tiny import TINY, train_tiny_edge
 
 
 @pytest.fixture
@@ -63,18 +63,7 @@ def test_edge_stage_trains_on_local_ray(ray_mod, tmp_path):
 
     torch.manual_seed(0)
     init_actor = make_actor("edge", "edge").module.state_dict()
-    path = train(
-        "edge",
-        TINY,
-        frames=200,
-        rows=1,
-        cols=1,
-        densities=1500,
-        seed=0,
-        out_dir=tmp_path,
-        progress=False,
-        ray_address="local",
-    )
+    path = train_tiny_edge(tmp_path, ray_address="local")
     # the collector started the runtime, so it shut it down again
     assert not ray_mod.is_initialized()
     assert _no_ray_processes_left()

@@ -14,7 +14,7 @@ from mivecc_agents.checkpoints import load_checkpoint
 from mivecc_agents.policies import load_policy
 from mivecc_agents.presets import PRESETS, get_preset
 from mivecc_agents.training import make_env, train
-from tests.agents.tiny import TINY
+from tests.agents.tiny import TINY, train_tiny_edge
 
 
 @pytest.fixture(scope="module")
@@ -26,17 +26,7 @@ def edge_run(tmp_path_factory):
     torch.manual_seed(0)
     init_actor = make_actor("edge", "edge").module.state_dict()
     init_critic = make_critic("edge", "edge").module.state_dict()
-    path = train(
-        "edge",
-        TINY,
-        frames=200,
-        rows=1,
-        cols=1,
-        densities=1500,
-        seed=0,
-        out_dir=out,
-        progress=False,
-    )
+    path = train_tiny_edge(out)
     return path, out, init_actor, init_critic
 
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 from mivecc_agents.presets import get_preset
 
 TINY = get_preset("stable").replace(
@@ -12,3 +15,11 @@ TINY = get_preset("stable").replace(
     episode_steps=120,
     buffer_size=500,
 )
+
+
+def train_tiny_edge(out_dir: Path, **kwargs: Any) -> Path:
+    """A 200-frame stage-I run on 1x1 at 1500 veh/lane/h; returns the checkpoint path."""
+    from mivecc_agents.training import train
+
+    return train("edge", TINY, frames=200, rows=1, cols=1, densities=1500, seed=0,
+                 out_dir=out_dir, progress=False, **kwargs)
