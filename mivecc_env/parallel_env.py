@@ -274,7 +274,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         view = sim.view
         v = sim.v.ravel()[view.vehicle]
         a = sim.a.ravel()[view.vehicle]
-        self._edge = edge_graphs(sim.network, view, sim.safety.sv, v, a, 1, c)
+        self._area = sim.network.control_area(view.lane, view.s)  # also used by the rewards
+        self._edge = edge_graphs(sim.network, view, sim.safety.sv, v, a, 1, c, self._area)
         di = density_indicator(view, c.di_n)
         self._cloud = cloud_graphs(sim.network, view, di, v, a, 1, c)
         self._v_view = v
@@ -291,8 +292,7 @@ class MiVeCCParallelEnv(ParallelEnv):
         """SV, velocity and collision reward terms, arrays in ``possible_agents`` order."""
         c, sim = self.config, self.sim
         n_int = c.n_intersections
-        view = sim.view
-        area = sim.network.control_area(view.lane, view.s)
+        area = self._area
         inside = area >= 0
         dv = self._v_view - c.reward_v_ref_mps
         area_in = area[inside]

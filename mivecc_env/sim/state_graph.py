@@ -67,14 +67,20 @@ def _rank_in_groups(sorted_groups: IntArray) -> IntArray:
 
 
 def select_edge_decisions(
-    network: GridNetwork, view: VirtualLaneView, sv: FloatArray, k: int, config: MiVeCCConfig
+    network: GridNetwork, view: VirtualLaneView, sv: FloatArray, k: int, config: MiVeCCConfig,
+    area: IntArray | None = None,
 ) -> tuple[IntArray, IntArray, IntArray]:
     """Up to ``k`` lowest-SV vehicles per (environment, control area).
+
+    Args:
+        area: (n,) control area of each view vehicle if the caller has it already
+            (``network.control_area(view.lane, view.s)``).
 
     Returns:
         (view index, node = env * n_intersections + intersection, column) of each decision.
     """
-    area = network.control_area(view.lane, view.s)
+    if area is None:
+        area = network.control_area(view.lane, view.s)
     inside = np.flatnonzero(area >= 0)
     node = view.env[inside] * network.n_intersections + area[inside]
     span = config.sv_max - config.sv_min + 1.0
@@ -181,11 +187,12 @@ def build_graphs(
 
 def edge_graphs(
     network: GridNetwork, view: VirtualLaneView, sv: FloatArray, velocity: FloatArray,
-    accel: FloatArray, batch: int, config: MiVeCCConfig,
+    accel: FloatArray, batch: int, config: MiVeCCConfig, area: IntArray | None = None,
 ) -> StateGraphs:
-    """Edge-node graphs, (B, n_intersections, K_edge, K_edge, 3)."""
+    """Edge-node graphs, (B, n_intersections, K_edge, K_edge, 3) (``area``: see
+    :func:`select_edge_decisions`)."""
     k = config.k_edge
-    decision, node, column = select_edge_decisions(network, view, sv, k, config)
+    decision, node, column = select_edge_decisions(network, view, sv, k, config, area)
     area = node % network.n_intersections
     lane = view.lane[decision]
     which = np.argmax(network.lane_intersections[lane] == area[:, None], axis=1)
