@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import numpy as np
+
 Scheme = Literal["E", "EE", "EEC"]
 Control = Literal["unsignalized", "signalized"]
 EndRule = Literal["sensible", "literal"]
@@ -211,7 +213,10 @@ class MiVeCCConfig:
     # ------------------------------------------------------------------------------------
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
+            raw = getattr(self, f.name)
+            value = _plain_scalar(raw)  # numpy scalars are accepted as their Python value
+            if value is not raw:
+                object.__setattr__(self, f.name, value)
             _check_field(f, value)
             rng = f.metadata.get("range")
             if rng is not None and rng.integer and isinstance(value, float):
@@ -239,6 +244,18 @@ class MiVeCCConfig:
              f"got {self.projection_window_m}")
         need(2 * self.lane_offset_m < half, "lane_offset_m",
              f"must be below segment_length_m / 4 = {half / 2}, got {self.lane_offset_m}")
+        # Opposite-direction lanes run 2 * lane_offset_m apart; only same-lane and
+        # conflict-point pairs are checked for collisions, so longer vehicles would overlap unseen.
+        need(self.vehicle_length_m <= 2 * self.lane_offset_m, "vehicle_length_m",
+             f"must be at most 2 * lane_offset_m = {2 * self.lane_offset_m} (vehicles on "
+             f"opposite-direction lanes would overlap unseen), got {self.vehicle_length_m}")
+        # The collision check samples positions once per step: a vehicle that moves 2 vehicle
+        # lengths in one step can cross another's collision zone between two checks.
+        step_m = self.v_max_mps * self.dt_s
+        need(step_m < 2 * self.vehicle_length_m, "dt_s",
+             f"v_max_mps * dt_s = {step_m:g} m per step must be below 2 * vehicle_length_m = "
+             f"{2 * self.vehicle_length_m:g} m (else a vehicle can pass another within one step "
+             f"unseen by the collision check): lower dt_s or v_max_mps, got dt_s={self.dt_s}")
 
     # ------------------------------------------------------------------------------------
     @property
@@ -261,6 +278,13 @@ class MiVeCCConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
+
+
+def _plain_scalar(value: Any) -> Any:
+    """A numpy scalar (or 0-d array) as the plain Python bool/int/float/str it holds."""
+    if isinstance(value, np.generic) or (isinstance(value, np.ndarray) and value.ndim == 0):
+        return value.item()
+    return value
 
 
 def _check_field(f: dataclasses.Field, value: Any) -> None:
@@ -290,8 +314,15 @@ ALIASES: dict[str, str] = {"density": "density_vplh"}
 def from_overrides(base: MiVeCCConfig | None = None, **overrides: Any) -> MiVeCCConfig:
     """Build a config from keyword overrides, rejecting unknown keys with a suggestion."""
     base = base or MiVeCCConfig()
+    for alias, name in ALIASES.items():
+        if alias in overrides and name in overrides:
+            raise ConfigError(
+                f"{alias}: given together with {name} ({alias!r} is another name for {name!r}); "
+                "give only one"
+            )
     fixed: dict[str, Any] = {}
     for key, value in overrides.items():
+        value = _plain_scalar(value)
         name = ALIASES.get(key, key)
         if name not in FIELD_NAMES:
             close = difflib.get_close_matches(key, [*FIELD_NAMES, *ALIASES], n=1)

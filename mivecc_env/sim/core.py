@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.sim import end_node, signals
+from mivecc_env.sim import checks, end_node, signals
 from mivecc_env.sim.arrivals import ArrivalProcess
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.safety import safety_value, time_to_collision
@@ -79,8 +79,7 @@ class Simulator:
         seed: int | Sequence[int] | None = None,
         capacity: int = 256,
     ) -> None:
-        if not isinstance(batch_size, int) or batch_size < 1:
-            raise ValueError(f"batch_size: must be an integer >= 1, got {batch_size!r}")
+        batch_size = checks.check_positive_int("batch_size", batch_size)
         self.config = config
         self.network = GridNetwork.from_config(config)
         self.batch_size = batch_size
@@ -121,13 +120,10 @@ class Simulator:
         self._refresh_view()
 
     def _seed_sequences(self, seed: int | Sequence[int] | None) -> list[np.random.SeedSequence]:
-        if seed is None or isinstance(seed, int | np.integer):
-            root = np.random.SeedSequence(None if seed is None else int(seed))
-            return root.spawn(self.batch_size)
-        seeds = list(seed)
-        if len(seeds) != self.batch_size:
-            raise ValueError(f"seed: need one seed per environment ({self.batch_size}), "
-                             f"got {len(seeds)}")
+        seed = checks.check_seed(seed, self.batch_size)
+        if seed is None or isinstance(seed, int):
+            return np.random.SeedSequence(seed).spawn(self.batch_size)
+        seeds = seed
         # Environment b of a seed list runs exactly like a B = 1 simulator seeded with seeds[b].
         return [np.random.SeedSequence(int(x)).spawn(1)[0] for x in seeds]
 
@@ -208,7 +204,15 @@ class Simulator:
             edge_accel: (B, capacity) edge action per vehicle slot [m/s^2], NaN where none.
             cloud_accel: (B, capacity) cloud action per vehicle slot [m/s^2], NaN where none.
                 Both are ignored under signalized control.
+
+        Raises:
+            ValueError: an action array of another shape than ``(B, capacity)`` (capacity
+                grows during ``step``: size the arrays from ``sim.capacity`` every step), not
+                numeric, or holding +-inf.
         """
+        shape = self.active.shape
+        edge_accel = checks.check_accel("edge_accel", edge_accel, shape)
+        cloud_accel = checks.check_accel("cloud_accel", cloud_accel, shape)
         c, view = self.config, self._view
         flat = view.vehicle
         s, v = self.s.ravel()[flat], self.v.ravel()[flat]

@@ -1,0 +1,109 @@
+"""Input checks of the simulator's public API: seeds, batch sizes and action arrays.
+
+Each check raises ``ValueError`` naming the argument and what is allowed, and costs a few
+scalar tests (plus one pass over an action array for infinities), so it can run every step.
+"""
+
+from __future__ import annotations
+
+import operator
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+__all__ = ["check_accel", "check_positive_int", "check_seed"]
+
+_SEED_RULE = "None, an integer >= 0, or a sequence of integers >= 0"
+
+
+def check_positive_int(name: str, value: Any) -> int:
+    """``value`` as a Python int >= 1 (numpy integers accepted); ``ValueError`` otherwise."""
+    if isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+    try:
+        out = operator.index(value)
+    except TypeError:
+        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}") from None
+    if out < 1:
+        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+    return out
+
+
+def _seed_int(name: str, value: Any) -> int:
+    if isinstance(value, bool | np.bool_):
+        raise ValueError(f"{name}: must be {_SEED_RULE}, got {value!r}")
+    try:
+        out = operator.index(value)
+    except TypeError:
+        raise ValueError(f"{name}: must be {_SEED_RULE}, got {value!r}") from None
+    if out < 0:
+        raise ValueError(f"{name}: must be {_SEED_RULE}, got {value!r}")
+    return out
+
+
+def check_seed(
+    seed: Any, batch_size: int | None = None, name: str = "seed"
+) -> int | list[int] | None:
+    """Validate a seed: ``None``, an integer >= 0, or (with ``batch_size``) one per environment.
+
+    Returns:
+        ``None``, the seed as an ``int``, or the list of ``batch_size`` ints.
+
+    Raises:
+        ValueError: naming ``name`` for a negative, fractional, non-integer or wrong-length seed.
+    """
+    if seed is None:
+        return None
+    if isinstance(seed, int | np.integer) and not isinstance(seed, bool | np.bool_):
+        return _seed_int(name, seed)
+    if batch_size is None or isinstance(seed, str | bytes | dict) or not isinstance(
+        seed, Sequence | np.ndarray
+    ):
+        raise ValueError(f"{name}: must be {_SEED_RULE}, got {seed!r}")
+    try:
+        items = list(seed)
+    except TypeError:  # e.g. a 0-d array
+        raise ValueError(f"{name}: must be {_SEED_RULE}, got {seed!r}") from None
+    seeds = [_seed_int(name, x) for x in items]
+    if len(seeds) != batch_size:
+        raise ValueError(f"{name}: need one seed per environment ({batch_size}), got {len(seeds)}")
+    return seeds
+
+
+def check_accel(name: str, accel: Any, shape: tuple[int, int]) -> np.ndarray | None:
+    """Validate a per-slot acceleration array of :meth:`Simulator.step`.
+
+    Args:
+        name: argument name for the message (``edge_accel`` / ``cloud_accel``).
+        accel: ``None`` or a numeric array of ``shape``; NaN means "no action" for a slot.
+        shape: ``(batch_size, capacity)`` of the simulator at the time of the call.
+
+    Returns:
+        ``accel`` as a numpy array (or ``None``).
+
+    Raises:
+        ValueError: wrong shape (e.g. transposed, or sized for an older capacity), a
+            non-numeric dtype, or an infinite value.
+    """
+    if accel is None:
+        return None
+    if not isinstance(accel, np.ndarray):
+        try:
+            accel = np.asarray(accel)
+        except Exception as exc:  # e.g. a torch tensor that requires grad
+            raise ValueError(
+                f"{name}: must be a numeric array of shape {shape} (batch_size, capacity), "
+                f"got {type(accel).__name__} ({exc})"
+            ) from None
+    if accel.shape != shape:
+        raise ValueError(
+            f"{name}: must have shape {shape} (batch_size, capacity: read sim.capacity before "
+            f"every step, it grows), got {accel.shape}"
+        )
+    kind = accel.dtype.kind
+    if kind not in "fiu":
+        raise ValueError(f"{name}: must be a numeric (float or int) array, got dtype {accel.dtype}")
+    if kind == "f" and np.isinf(accel).any():
+        raise ValueError(f"{name}: values must be finite or NaN (no action), got +-inf")
+    return accel
