@@ -12,7 +12,10 @@ Features (all scaled to ``[-1, 1]``):
   decision vehicle's on the virtual lane. Divided by the node's position scale
   (edge: ``2 * control_radius_m``, cloud: the longest lane) and clipped to ``[-1, 1]``.
 * velocity: ``2 (v - v_floor) / (v_max - v_floor) - 1``.
-* acceleration: ``a / a_max``.
+* acceleration: ``a / accel_scale_mps2(config)``: ``a_max`` under unsignalized control, and
+  ``max(a_max, idm_max_decel_mps2)`` under signals, whose emergency braking (9 m/s^2 by default)
+  exceeds ``a_max``. So every channel stays in ``[-1, 1]``, the observation box; velocity and
+  acceleration are also clipped to it, a guard that no current control mode reaches.
 
 Edge node of intersection ``i``: decision vehicles are the (up to) K vehicles with the lowest
 safety value inside its control area; references come from the part of the virtual lane inside
@@ -51,6 +54,13 @@ class StateGraphs:
     mask: NDArray[np.float32]
     slot: IntArray
     view_index: IntArray
+
+
+def accel_scale_mps2(config: MiVeCCConfig) -> float:
+    """Largest acceleration magnitude [m/s^2] of the control mode (scale of the accel channel)."""
+    if config.control == "signalized":
+        return max(config.a_max_mps2, config.idm_max_decel_mps2)
+    return config.a_max_mps2
 
 
 def _unit_clip(x: FloatArray) -> FloatArray:
@@ -144,8 +154,9 @@ def build_graphs(
         return finish()
 
     v_lo = config.velocity_floor_mps
-    v_norm = ((velocity - v_lo) * (2.0 / (config.v_max_mps - v_lo)) - 1.0).astype(np.float32)
-    a_norm = (accel * (1.0 / config.a_max_mps2)).astype(np.float32)
+    v_norm = _unit_clip((velocity - v_lo) * (2.0 / (config.v_max_mps - v_lo)) - 1.0)
+    v_norm = v_norm.astype(np.float32)
+    a_norm = _unit_clip(accel * (1.0 / accel_scale_mps2(config))).astype(np.float32)
     inv_scale = 1.0 / position_scale_m
 
     s_d = view.s[decision]
