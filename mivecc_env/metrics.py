@@ -7,7 +7,20 @@
   cruise to the exit (no waiting);
 * mean speed in the network (over all vehicle-steps), throughput (exited vehicles, and per
   hour), collisions (events and vehicles removed), entry backlog (queued vehicles), mean trip
-  and waiting times, and the accounting terms.
+  and waiting times, and the accounting terms;
+* the released code's velocity (``released_velocity_mps``): path length from the network entry
+  to 5 m past the last intersection centre of the lane (455 m on 3x3) over the mean passing
+  time to that mark, no entry wait (``mivecc_env.sim.passing``: ``sum(length) / sum(time)``,
+  i.e. mean length / mean time, not the mean of per-vehicle velocities; 0 before any vehicle
+  has passed), and ``released_passed``, the number of vehicles that passed the mark;
+* near-miss measures (``mivecc_env.sim.near_miss`` defines them): minimum and 1st-percentile
+  time to collision on the virtual lanes (``min_ttc_s``, ``ttc_p1_s``), post-encroachment time
+  at the conflict points (``min_pet_s``, ``pet_under_1s``, ``pet_samples``) and the minimum
+  centre distance between two vehicles (``min_distance_m``).
+
+A minimum without samples (no TTC or PET sample, never two vehicles at once) is ``inf``, the
+minimum of nothing; no summary value is ever NaN (the summaries travel in the environments'
+infos, and NaN != NaN would break their equality checks, e.g. PettingZoo's seed test).
 """
 
 from __future__ import annotations
@@ -27,7 +40,12 @@ SUMMARY_KEYS: tuple[str, ...] = (
     "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
     "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
     "backlog", "in_network", "arrived", "mean_trip_time_s", "mean_wait_time_s", "sim_time_s",
+    "released_velocity_mps", "released_passed",
+    "min_ttc_s", "ttc_p1_s", "min_pet_s", "pet_under_1s", "pet_samples", "min_distance_m",
 )
+
+#: The keys of :data:`SUMMARY_KEYS` that are ``inf`` when there is no sample.
+INF_WHEN_NO_DATA: tuple[str, ...] = ("min_ttc_s", "ttc_p1_s", "min_pet_s", "min_distance_m")
 
 
 def min_travel_time_s(config: MiVeCCConfig, path_length_m: float | np.ndarray) -> np.ndarray:
@@ -79,4 +97,7 @@ def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
         "mean_trip_time_s": float(sim.sum_trip_time[env] / n) if exited else 0.0,
         "mean_wait_time_s": float(sim.sum_wait_time[env] / n) if exited else 0.0,
         "sim_time_s": float(sim_time),
+        "released_velocity_mps": float(sim.passing.velocity_mps()[env]),
+        "released_passed": float(sim.passing.count[env]),
+        **sim.near_miss.summary(env),
     }

@@ -28,7 +28,9 @@ from numpy.typing import NDArray
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import checks, end_node, signals
 from mivecc_env.sim.arrivals import ArrivalProcess
+from mivecc_env.sim.near_miss import NearMissStats
 from mivecc_env.sim.network import GridNetwork
+from mivecc_env.sim.passing import PassingTimes
 from mivecc_env.sim.safety import safety_value, time_to_collision
 from mivecc_env.sim.virtual_lane import VirtualLaneView, build_view
 
@@ -116,6 +118,9 @@ class Simulator:
         self.sum_wait_time = np.zeros(b)  # entry - arrival [s]
         self.sum_speed_samples = np.zeros(b)  # sum over steps of the vehicles' speeds [m/s]
         self.vehicle_steps = np.zeros(b, dtype=np.int64)
+        # released-style passing times and near-miss measures (their modules say what)
+        self.passing = PassingTimes(self.network, b)
+        self.near_miss = NearMissStats(self.network, b, self.config.vehicle_length_m)
         self.last_events = self._no_events()
         self._refresh_view()
 
@@ -235,6 +240,8 @@ class Simulator:
         events = self._no_events()
         length = self.network.lane_length[lane]
         out = s_new >= length
+        self.passing.record(view.env, lane, s, s_new, self.t_enter.ravel()[flat], t0, c.dt_s)
+        self.near_miss.record_step(view, v, s_new, out, t0, c.dt_s)
         if out.any():
             self._record_exits(view, out, s, s_new, length, t0, t1, events)
         self._remove_collisions(view, s_new, out, events)

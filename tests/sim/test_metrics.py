@@ -7,13 +7,14 @@ import pytest
 
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.metrics import (
+    INF_WHEN_NO_DATA,
     SUMMARY_KEYS,
     episode_summary,
     min_travel_time_s,
     upper_bound_velocity_mps,
 )
 from mivecc_env.sim.core import Simulator
-from tests.sim._scenario import EAST, place
+from tests.sim._scenario import EAST, NORTH, place
 
 # Enter at 10 m/s, accelerate at 3 m/s^2 to 13 m/s: 1 s and (13^2 - 10^2) / 6 = 11.5 m,
 # then cruise at 13 m/s.
@@ -53,7 +54,9 @@ def test_summary_of_a_fresh_simulator() -> None:
     assert all(isinstance(v, float) for v in summary.values())
     assert summary["upper_bound_mps"] == pytest.approx(V300, abs=1e-9)
     for key in SUMMARY_KEYS:
-        if key != "upper_bound_mps":
+        if key in INF_WHEN_NO_DATA:
+            assert summary[key] == np.inf, key  # no sample yet
+        elif key != "upper_bound_mps":
             assert summary[key] == 0.0, key
 
 
@@ -74,6 +77,13 @@ def test_a_lone_vehicle_reaches_the_upper_bound() -> None:
     assert s["sim_time_s"] == pytest.approx(24.0)
     assert s["throughput_vph"] == pytest.approx(3600.0 / 24.0)
     assert s["collisions"] == s["collided_vehicles"] == s["in_network"] == 0.0
+    # released-style velocity: the mark is 150 + 5 = 155 m; reached at 1 + 143.5 / 13 s
+    assert s["released_passed"] == 1.0
+    assert s["released_velocity_mps"] == pytest.approx(155.0 / (1.0 + 143.5 / 13.0), abs=1e-9)
+    # alone: no TTC or PET sample, no pair of vehicles
+    for key in ("min_ttc_s", "ttc_p1_s", "min_pet_s", "min_distance_m"):
+        assert s[key] == np.inf, key
+    assert s["pet_samples"] == s["pet_under_1s"] == 0.0
     # mean speed over its 232 vehicle-steps: 10 steps at 10.3, 10.6, ..., 13.0, then 13.0
     steps = int(sim.vehicle_steps[0])
     assert steps == 232
@@ -106,3 +116,14 @@ def test_summary_consistent_with_counters() -> None:
         assert 6.0 <= s["mean_speed_mps"] <= 13.0
         assert s["avg_travel_velocity_mps"] <= s["upper_bound_mps"] + 1e-9
         assert s["avg_travel_velocity_no_wait_mps"] >= s["avg_travel_velocity_mps"]
+
+
+def test_a_collision_shows_in_the_minimum_distance() -> None:
+    # east 1 m and north 1 m before their shared conflict point, both at 10 m/s: after one
+    # step both stand on it (distance 0): one collision event, minimum distance below 2 m
+    sim = Simulator(MiVeCCConfig(rows=1, cols=1, density_vplh=1.0), seed=1)
+    place(sim, [(EAST, 154.0, 10.0), (NORTH, 144.0, 10.0)])
+    sim.step()
+    s = episode_summary(sim)
+    assert s["collisions"] == 1.0
+    assert s["min_distance_m"] < 2.0

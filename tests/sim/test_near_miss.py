@@ -1,0 +1,148 @@
+"""Near-miss measures on constructed encounters with hand-computed values.
+
+Vehicles move at constant speeds through hand-built virtual-lane views, so the measures are
+checked independently of the driving rules.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim.near_miss import TTC_BIN_S, NearMissStats, ttc_percentile
+from mivecc_env.sim.network import GridNetwork
+from mivecc_env.sim.virtual_lane import build_view
+from tests.sim._scenario import EAST, NORTH, WEST
+
+DT = 0.1
+
+
+def drive(config: MiVeCCConfig, vehicles: list[tuple[int, float, float]], steps: int,
+          batch: int = 1) -> NearMissStats:
+    """Move ``(lane, s, v)`` vehicles at constant speed for ``steps`` steps in every env."""
+    net = GridNetwork.from_config(config)
+    stats = NearMissStats(net, batch, config.vehicle_length_m)
+    n = len(vehicles)
+    active = np.ones((batch, n), dtype=bool)
+    lane = np.tile(np.array([x[0] for x in vehicles], dtype=np.int64), (batch, 1))
+    s = np.tile(np.array([x[1] for x in vehicles]), (batch, 1))
+    v = np.tile(np.array([x[2] for x in vehicles]), (batch, 1))
+    for k in range(steps):
+        view = build_view(net, config.projection_window_m, config.projection_clear_m,
+                          active, lane, s)
+        v_view = v.ravel()[view.vehicle]
+        s_new = view.s + v_view * DT
+        stats.record_step(view, v_view, s_new, np.zeros(view.n_vehicles, bool), k * DT, DT)
+        s.ravel()[view.vehicle] = s_new
+    return stats
+
+
+ONE = MiVeCCConfig(rows=1, cols=1)
+
+
+def test_ttc_of_a_closing_follower() -> None:
+    # follower 21 m behind its leader, closing at 13 - 8 = 5 m/s: TTC 4.2 s at the first step;
+    # one step later 20.5 m -> 4.1 s (the minimum); the leader has nothing ahead
+    stats = drive(ONE, [(EAST, 20.0, 13.0), (EAST, 41.0, 8.0)], steps=2)
+    assert stats.min_ttc_s[0] == pytest.approx(4.1)
+    assert stats.ttc_hist[0].sum() == 2
+    # the 1st percentile is the lower sample's bin, rounded up to the bin edge
+    assert 4.1 - 1e-9 <= ttc_percentile(stats.ttc_hist)[0] <= 4.1 + TTC_BIN_S + 1e-9
+    assert stats.summary(0)["min_ttc_s"] == pytest.approx(4.1)
+
+
+def test_no_ttc_sample_without_closing() -> None:
+    stats = drive(ONE, [(EAST, 20.0, 8.0), (EAST, 41.0, 13.0)], steps=5)
+    assert stats.ttc_hist.sum() == 0
+    assert stats.summary(0)["min_ttc_s"] == np.inf
+    assert stats.summary(0)["ttc_p1_s"] == np.inf
+
+
+def test_ttc_percentile_of_a_histogram() -> None:
+    hist = np.zeros((2, 2001), dtype=np.int64)
+    hist[0, 5] = hist[0, 7] = 1
+    hist[0, 100] = 198  # 200 samples: the 1st percentile is the 2nd smallest, bin 7
+    hist[1, 2000] = 3  # only overflow
+    p = ttc_percentile(hist)
+    assert p[0] == pytest.approx(8 * TTC_BIN_S)
+    assert p[1] == np.inf
+    assert ttc_percentile(np.zeros((1, 2001), dtype=np.int64))[0] == np.inf  # no sample
+
+
+def test_post_encroachment_time() -> None:
+    # 1x1: the eastbound and northbound lanes cross at s = 155 m (east) and 145 m (north).
+    # A (east, 100 m, 10 m/s) leaves the point (centre 1 m past it, 156 m) at 5.6 s;
+    # B (north, 80.5 m) reaches it (centre 1 m before it, 144 m) at 6.35 s: PET 0.75 s.
+    # B leaves at 6.55 s. D follows B (north, 60.5 m): it reaches at 8.35 s, after its own
+    # lane's B left last: no sample. C follows A (east, 70 m): reaches at 8.4 s; the last to
+    # leave was B (D leaves at 8.55 s): PET 8.4 - 6.55 = 1.85 s.
+    stats = drive(ONE, [(EAST, 100.0, 10.0), (NORTH, 80.5, 10.0), (EAST, 70.0, 10.0),
+                        (NORTH, 60.5, 10.0)], steps=100)
+    assert stats.pet_samples.tolist() == [2]
+    assert stats.pet_under.tolist() == [1]
+    assert stats.min_pet_s[0] == pytest.approx(0.75, abs=1e-9)
+    summary = stats.summary(0)
+    assert summary["min_pet_s"] == pytest.approx(0.75, abs=1e-9)
+    assert summary["pet_under_1s"] == 1.0 and summary["pet_samples"] == 2.0
+
+
+def test_pet_within_one_step() -> None:
+    # A (east) leaves 156 m at 0.05 s and B (north) reaches 144 m at 0.08 s, both in the
+    # first step (20 m/s: 2 m per step): PET 0.03 s
+    stats = drive(ONE, [(EAST, 155.0, 20.0), (NORTH, 142.4, 20.0)], steps=3)
+    assert stats.pet_samples.tolist() == [1]
+    assert stats.min_pet_s[0] == pytest.approx(0.03, abs=1e-9)
+
+
+def test_min_distance_of_a_crossing_pair() -> None:
+    # A 5 m before the point on the east lane, B 4 m before it on the north lane: hypot(5, 4);
+    # an own-lane pair 10 m apart and a vehicle on the west lane are farther
+    stats = drive(ONE, [(EAST, 150.0, 0.0), (NORTH, 141.0, 0.0), (EAST, 20.0, 0.0),
+                        (EAST, 30.0, 0.0), (WEST, 30.0, 0.0)], steps=1)
+    assert stats.min_distance_m[0] == pytest.approx(np.hypot(5.0, 4.0))
+
+
+def test_min_distance_of_an_own_lane_pair() -> None:
+    stats = drive(ONE, [(EAST, 20.0, 0.0), (EAST, 23.5, 0.0), (NORTH, 141.0, 0.0)], steps=1)
+    assert stats.min_distance_m[0] == pytest.approx(3.5)
+
+
+def test_min_distance_of_opposite_lanes() -> None:
+    # east at x = 100, y = 145; west (from x = 300) at s = 195: x = 105, y = 155
+    stats = drive(ONE, [(EAST, 100.0, 0.0), (WEST, 195.0, 0.0)], steps=1)
+    assert stats.min_distance_m[0] == pytest.approx(np.hypot(5.0, 10.0))
+
+
+def test_min_distance_of_parallel_roads() -> None:
+    # 2x1: eastbound rows 0 and 1 (lanes 0, 1) run at y = 145 and 295: 150 m apart
+    stats = drive(MiVeCCConfig(rows=2, cols=1), [(0, 100.0, 0.0), (1, 100.0, 0.0)], steps=1)
+    assert stats.min_distance_m[0] == pytest.approx(150.0)
+
+
+def test_min_distance_matches_brute_force() -> None:
+    # many random vehicles in a 3x3 grid: the fast path equals the all-pairs minimum
+    cfg = MiVeCCConfig()
+    net = GridNetwork.from_config(cfg)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        n = 40
+        lane = rng.integers(0, net.n_lanes, n)
+        s = rng.uniform(0.0, 590.0, n)
+        stats = drive(cfg, [(int(a), float(b), 0.0) for a, b in zip(lane, s, strict=True)], 1)
+        xy = net.xy(lane, s)
+        d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+        np.fill_diagonal(d, np.inf)
+        assert stats.min_distance_m[0] == pytest.approx(d.min())
+
+
+def test_reset_at_clears_one_environment() -> None:
+    stats = drive(ONE, [(EAST, 100.0, 10.0), (NORTH, 80.5, 10.0), (EAST, 20.0, 13.0),
+                        (EAST, 41.0, 8.0)], steps=80, batch=2)
+    assert stats.pet_samples.tolist() == [1, 1]
+    stats.reset_at(np.array([1]))
+    assert stats.pet_samples.tolist() == [1, 0]
+    assert np.isfinite(stats.min_ttc_s[0]) and stats.min_ttc_s[1] == np.inf
+    assert stats.ttc_hist[1].sum() == 0 and stats.ttc_hist[0].sum() > 0
+    assert np.isinf(stats.last_leave_s.reshape(2, -1)[1]).all()
+    assert stats.summary(1)["min_distance_m"] == np.inf
