@@ -217,7 +217,7 @@ class NearMissStats:
         ttc = view.d_front[i] / closing[i]
         env = view.env[i]
         np.minimum.at(self.min_ttc_s, env, ttc)
-        bins = np.minimum((ttc * (1.0 / TTC_BIN_S)).astype(np.int64), _N_TTC_BINS)
+        bins = np.fmin(ttc * (1.0 / TTC_BIN_S), _N_TTC_BINS).astype(np.int64)  # inf: overflow
         np.add.at(self.ttc_hist.reshape(-1), env * (_N_TTC_BINS + 1) + bins, 1)
 
     def _record_pet(
