@@ -1,28 +1,37 @@
-"""Speed of the MiVeCC simulator, with Eclipse SUMO on the same grid and demand as reference.
+"""Speed of the MiVeCC simulator and environments, with Eclipse SUMO as the outside reference.
 
 For every grid (``--grids``, default ``1x1 3x3``) and density (``--densities``, default
-300 900 1500 2100 veh/lane/h) this measures
+300 900 1500 2100 veh/lane/h) this measures, round-robin in one run:
 
-(a) ``env``: the full PettingZoo ``ParallelEnv.step`` with all observations, rewards and infos
-    (B = 1, scheme E, zero actions for every agent, the action dict built once);
-(b) ``core``: the bare batched ``Simulator(cfg, batch_size=B).step()`` for B in ``--batches``
-    (default 1 16 64; scheme E, no coordinator actions);
-(c) ``sumo``: when :func:`sumo_reference.sumo_available`, SUMO (libsumo) on the same grid and
-    demand, in the same run (``run_sumo(rows, cols, density, steps, seed, warmup)``).
+(a) ``env <scheme>``: the full PettingZoo ``ParallelEnv.step`` (B = 1) with every observation
+    its scheme uses, rewards and infos, for each scheme in ``--env-schemes`` (default E EEC;
+    zero actions for every agent, the action dict built once);
+(b) ``batched B=N``: ``mivecc_env.batched.BatchedMiVeCCEnv`` (scheme EEC: edge and cloud
+    observations, rewards, zero actions) for N in ``--env-batches`` (default 1 16 64 256), when
+    that module exists;
+(c) ``core B=N``: the bare batched ``Simulator(cfg, batch_size=N).step()`` for N in
+    ``--batches`` (default 1 16 64 256; scheme E, no coordinator actions);
+(d) ``sumo <junction>``: when :func:`sumo_reference.sumo_available`, SUMO (libsumo) on the same
+    grid and demand for each junction type in ``--sumo-junctions`` (default ``unregulated``,
+    the like-for-like peer that never jams, plus ``right_before_left`` and ``traffic_light``
+    (fixed time), which jam from about 900 veh/lane/h and are extra rows only).
 
-Each measurement first runs ``--warmup`` untimed steps (the network fills), then times
-``--steps`` steps with ``time.perf_counter``. With ``--repeats R`` every measurement of a grid
-and density runs R times, round-robin over the engines, and the fastest run is kept (other
-processes on the machine only ever slow a run down). Vehicle-steps are the simulator's own counter
+Each measurement first runs ``--warmup`` untimed steps (the network fills; the batched env is
+filled with bare core steps, then 20 untimed env steps), then times ``--steps`` steps with
+``time.perf_counter``. With ``--repeats R`` every measurement of a grid and density runs R
+times, round-robin over the engines, and the fastest run is kept (other processes on the
+machine only ever slow a run down). Vehicle-steps are the simulator's own counter
 (``Simulator.vehicle_steps``: vehicles moved per step, summed over the environments), read
 before and after the timed loop, so counting costs nothing inside it; SUMO's count is a
 ``getIDCount()`` per step inside its timed loop (about 1 % of a step, see sumo_reference.py).
+*queue/env* is the number of vehicles waiting to enter, per environment, at the end of the
+timed steps (SUMO: its insertion backlog).
 
-Printed: a markdown table of all measurements, the ratios to SUMO per grid and density, and
-the brief's two floors at 3x3 / 2100 veh/lane/h (measured, never assumed):
-
-1. the full env step is at least as fast as SUMO's bare step (steps/s);
-2. the batched core at B = 64 moves at least 10x SUMO's vehicle-steps/s.
+The headline ratio is vehicle-steps/s over SUMO-unregulated's (the engines carry different
+numbers of vehicles, so steps/s alone flatters the lighter one); steps/s ratios and each
+engine's vehicle count are printed beside it. Floors at 3x3 / 2100 veh/lane/h (measured,
+never assumed): the full ParallelEnv step (scheme EEC) >= 1x, the batched env at B = 64 >= 5x
+and the bare core at B = 64 >= 15x SUMO-unregulated's vehicle-steps/s.
 
 Files: ``speed.csv`` (one row per measurement), ``speed.json`` (rows, ratios, floors and the
 machine) and ``speed.md`` (the printed tables) under ``--out`` (default
@@ -30,7 +39,7 @@ machine) and ``speed.md`` (the printed tables) under ``--out`` (default
 
 Usage::
 
-    python benchmarks/speed.py                       # full run (several minutes)
+    python benchmarks/speed.py                       # full run (long)
     python benchmarks/speed.py --grids 3x3 --densities 2100 --batches 64 --steps 500
     python benchmarks/speed.py --quick --out /tmp/speed   # seconds; for tests
 """
@@ -62,14 +71,18 @@ from mivecc_env.sim.core import Simulator
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "speed"
+PEER = "sumo unregulated"  # the like-for-like reference of every ratio
 FLOOR_GRID = (3, 3)
 FLOOR_DENSITY = 2100.0
-FLOOR_ENV_VS_SUMO_STEPS = 1.0
-FLOOR_CORE64_VS_SUMO_VEH = 10.0
-FLOOR_BATCH = 64
+#: (floor name, engine, required vehicle-steps/s ratio to SUMO-unregulated, description)
+FLOORS = (
+    ("env_b1", "env EEC", 1.0, "full ParallelEnv step (B=1, scheme EEC, all observations)"),
+    ("batched_b64", "batched B=64", 5.0, "batched env (EEC observations) at B=64"),
+    ("core_b64", "core B=64", 15.0, "bare core at B=64"),
+)
 CSV_FIELDS = (
     "grid", "rows", "cols", "density", "engine", "batch", "steps", "warmup", "elapsed_s",
-    "steps_per_s", "env_steps_per_s", "mean_vehicles", "vehicle_steps_per_s",
+    "steps_per_s", "env_steps_per_s", "mean_vehicles", "queue", "vehicle_steps_per_s",
 )  # fmt: skip
 
 
@@ -85,11 +98,16 @@ def _load_sumo_reference() -> ModuleType:
 sumo_reference = _load_sumo_reference()
 
 
+def batched_available() -> bool:
+    """Whether ``mivecc_env.batched.BatchedMiVeCCEnv`` exists in this checkout."""
+    return importlib.util.find_spec("mivecc_env.batched") is not None
+
+
 # ----------------------------------------------------------------------------------------------
 # measurements
 def _row(
     rows: int, cols: int, density: float, engine: str, batch: int, steps: int, warmup: int,
-    elapsed: float, vehicle_steps: float,
+    elapsed: float, vehicle_steps: float, queue: float,
 ) -> dict[str, Any]:
     """One measurement as a flat record (the CSV row)."""
     return {
@@ -97,61 +115,85 @@ def _row(
         "engine": engine, "batch": batch, "steps": steps, "warmup": warmup,
         "elapsed_s": elapsed, "steps_per_s": steps / elapsed,
         "env_steps_per_s": batch * steps / elapsed,
-        "mean_vehicles": vehicle_steps / (steps * batch),
+        "mean_vehicles": vehicle_steps / (steps * batch), "queue": float(queue),
         "vehicle_steps_per_s": vehicle_steps / elapsed,
     }  # fmt: skip
 
 
-def measure_env(
-    rows: int, cols: int, density: float, steps: int, warmup: int, seed: int
-) -> dict[str, Any]:
-    """(a) Full ``ParallelEnv.step`` (B = 1, scheme E, zero actions, all observations)."""
-    env = mivecc_v0.parallel_env(
-        rows=rows, cols=cols, density=density, scheme="E", max_steps=warmup + steps + 1
-    )
-    env.reset(seed=seed)
-    actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
-    step = env.step
-    for _ in range(warmup):
-        step(actions)
-    before = int(env.sim.vehicle_steps.sum())
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        step(actions)
-    elapsed = time.perf_counter() - t0
-    moved = int(env.sim.vehicle_steps.sum()) - before
-    env.close()
-    return _row(rows, cols, density, "env", 1, steps, warmup, elapsed, moved)
-
-
-def measure_core(
-    rows: int, cols: int, density: float, batch: int, steps: int, warmup: int, seed: int
-) -> dict[str, Any]:
-    """(b) Bare batched ``Simulator.step()`` of ``batch`` environments (scheme E)."""
-    cfg = MiVeCCConfig(rows=rows, cols=cols, density_vplh=float(density), scheme="E")
-    sim = Simulator(cfg, batch_size=batch, seed=seed)
-    step = sim.step
-    for _ in range(warmup):
-        step()
+def _timed(step: Callable[[], Any], sim: Simulator, steps: int) -> tuple[float, int]:
+    """Wall seconds of ``steps`` calls of ``step`` and the vehicle-steps moved meanwhile."""
     before = int(sim.vehicle_steps.sum())
     t0 = time.perf_counter()
     for _ in range(steps):
         step()
     elapsed = time.perf_counter() - t0
-    moved = int(sim.vehicle_steps.sum()) - before
-    return _row(rows, cols, density, f"core B={batch}", batch, steps, warmup, elapsed, moved)
+    return elapsed, int(sim.vehicle_steps.sum()) - before
+
+
+def measure_env(
+    rows: int, cols: int, density: float, steps: int, warmup: int, seed: int,
+    scheme: str = "EEC",
+) -> dict[str, Any]:
+    """(a) Full ``ParallelEnv.step`` (B = 1, zero actions, every observation of ``scheme``)."""
+    env = mivecc_v0.parallel_env(
+        rows=rows, cols=cols, density=density, scheme=scheme, max_steps=warmup + steps + 1
+    )
+    env.reset(seed=seed)
+    actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
+    for _ in range(warmup):
+        env.step(actions)
+    elapsed, moved = _timed(functools.partial(env.step, actions), env.sim, steps)
+    queue = float(env.sim.queued.mean())
+    env.close()
+    return _row(rows, cols, density, f"env {scheme}", 1, steps, warmup, elapsed, moved, queue)
+
+
+def measure_batched(
+    rows: int, cols: int, density: float, batch: int, steps: int, warmup: int, seed: int
+) -> dict[str, Any]:
+    """(b) ``BatchedMiVeCCEnv.step`` of ``batch`` environments, scheme EEC, zero actions."""
+    from mivecc_env.batched import BatchedMiVeCCEnv
+
+    env = BatchedMiVeCCEnv(batch_size=batch, rows=rows, cols=cols, density_vplh=float(density),
+                           scheme="EEC", max_steps=10_000_000)
+    env.reset(seed=seed)
+    for _ in range(warmup):  # fill the network with bare core steps (cheap), then env steps
+        env.sim.step()
+    edge = np.zeros((batch, env.n_edge, env.k_edge))
+    cloud = np.zeros((batch, env.k_cloud))
+    step = functools.partial(env.step, edge, cloud)
+    for _ in range(20):
+        step()
+    elapsed, moved = _timed(step, env.sim, steps)
+    return _row(rows, cols, density, f"batched B={batch}", batch, steps, warmup, elapsed, moved,
+                float(env.sim.queued.mean()))
+
+
+def measure_core(
+    rows: int, cols: int, density: float, batch: int, steps: int, warmup: int, seed: int
+) -> dict[str, Any]:
+    """(c) Bare batched ``Simulator.step()`` of ``batch`` environments (scheme E)."""
+    cfg = MiVeCCConfig(rows=rows, cols=cols, density_vplh=float(density), scheme="E")
+    sim = Simulator(cfg, batch_size=batch, seed=seed)
+    for _ in range(warmup):
+        sim.step()
+    elapsed, moved = _timed(sim.step, sim, steps)
+    return _row(rows, cols, density, f"core B={batch}", batch, steps, warmup, elapsed, moved,
+                float(sim.queued.mean()))
 
 
 def measure_sumo(
-    rows: int, cols: int, density: float, steps: int, warmup: int, seed: int
+    rows: int, cols: int, density: float, steps: int, warmup: int, seed: int,
+    junction_type: str = "unregulated",
 ) -> dict[str, Any]:
-    """(c) SUMO on the same grid and demand (see ``benchmarks/sumo_reference.py``)."""
-    res = sumo_reference.run_sumo(rows, cols, density, steps, seed, warmup)
-    row = _row(rows, cols, density, "sumo", 1, steps, warmup, res["elapsed_s"],
-               res["mean_vehicles"] * steps)
+    """(d) SUMO on the same grid and demand (see ``benchmarks/sumo_reference.py``)."""
+    res = sumo_reference.run_sumo(rows, cols, density, steps, seed, warmup, junction_type)
+    row = _row(rows, cols, density, f"sumo {junction_type}", 1, steps, warmup,
+               res["elapsed_s"], res["mean_vehicles"] * steps, res["insertion_backlog"])
     row["vehicle_steps_per_s"] = res["vehicle_steps_per_s"]
     row["sumo"] = {k: res[k] for k in ("sumo_version", "junction_type", "teleports",
-                                       "inserted", "insertion_backlog", "count_call_us")}
+                                       "inserted", "insertion_backlog", "queue_start",
+                                       "count_call_us")}
     return row
 
 
@@ -166,44 +208,40 @@ def keep_fastest(runs: list[dict[str, Any]]) -> dict[str, Any]:
 # ----------------------------------------------------------------------------------------------
 # ratios, floors, reporting
 def ratios(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per grid and density: env steps/s / SUMO steps/s, core B vehicle-steps/s / SUMO's."""
+    """Per grid, density and engine: vehicle-steps/s and steps/s over SUMO-unregulated's."""
     out = []
     keys = sorted({(r["rows"], r["cols"], r["density"]) for r in results})
     for rows, cols, density in keys:
-        group = {r["engine"]: r for r in results
-                 if (r["rows"], r["cols"], r["density"]) == (rows, cols, density)}
-        sumo = group.get("sumo")
-        if sumo is None:
+        group = [r for r in results
+                 if (r["rows"], r["cols"], r["density"]) == (rows, cols, density)]
+        peer = next((r for r in group if r["engine"] == PEER), None)
+        if peer is None:
             continue
-        entry: dict[str, Any] = {"grid": f"{rows}x{cols}", "rows": rows, "cols": cols,
-                                 "density": density}
-        if "env" in group:
-            entry["env_vs_sumo_steps"] = group["env"]["steps_per_s"] / sumo["steps_per_s"]
-        for engine, r in group.items():
-            if engine.startswith("core B="):
-                entry[f"core_b{r['batch']}_vs_sumo_vehicle_steps"] = (
-                    r["vehicle_steps_per_s"] / sumo["vehicle_steps_per_s"]
-                )
-        out.append(entry)
+        for r in group:
+            if r["engine"] == PEER:
+                continue
+            out.append({
+                "grid": f"{rows}x{cols}", "rows": rows, "cols": cols, "density": density,
+                "engine": r["engine"],
+                "vehicle_steps_ratio": r["vehicle_steps_per_s"] / peer["vehicle_steps_per_s"],
+                "steps_ratio": r["steps_per_s"] / peer["steps_per_s"],
+                "vehicles": r["mean_vehicles"], "peer_vehicles": peer["mean_vehicles"],
+                "queue": r["queue"], "peer_queue": peer["queue"],
+            })  # fmt: skip
     return out
 
 
 def floors(ratio_rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The brief's two floors at 3x3 / 2100 veh/lane/h: measured ratio and met / not met."""
-    at = [r for r in ratio_rows
-          if (r["rows"], r["cols"], r["density"]) == (*FLOOR_GRID, FLOOR_DENSITY)]
-    spec = (
-        ("env_vs_sumo_steps", "env_vs_sumo_steps", FLOOR_ENV_VS_SUMO_STEPS,
-         "full env step (B=1) steps/s >= SUMO steps/s at 3x3, 2100 veh/lane/h"),
-        ("core_b64_vs_sumo_vehicle_steps", f"core_b{FLOOR_BATCH}_vs_sumo_vehicle_steps",
-         FLOOR_CORE64_VS_SUMO_VEH,
-         "batched core B=64 vehicle-steps/s >= 10x SUMO vehicle-steps/s at 3x3, 2100 veh/lane/h"),
-    )
+    """The brief's floors at 3x3 / 2100 veh/lane/h: measured ratio and met / not met."""
     result = {}
-    for name, key, need, text in spec:
-        value = at[0].get(key) if at else None
+    for name, engine, need, text in FLOORS:
+        at = [r for r in ratio_rows if r["engine"] == engine
+              and (r["rows"], r["cols"], r["density"]) == (*FLOOR_GRID, FLOOR_DENSITY)]
+        value = at[0]["vehicle_steps_ratio"] if at else None
         result[name] = {
-            "description": text, "required_ratio": need, "measured_ratio": value,
+            "description": f"{text}: vehicle-steps/s >= {need:g}x SUMO-unregulated at 3x3, "
+                           "2100 veh/lane/h",
+            "engine": engine, "required_ratio": need, "measured_ratio": value,
             "met": None if value is None else bool(value >= need),
         }
     return result
@@ -215,38 +253,39 @@ def _num(x: float) -> str:
 
 def markdown_tables(results: list[dict[str, Any]], ratio_rows: list[dict[str, Any]],
                     floor: dict[str, Any]) -> str:
-    """The measurements, the ratios and the floors as markdown."""
+    """The measurements, the ratios to SUMO-unregulated and the floors as markdown."""
     lines = [
         "| grid | density (veh/lane/h) | engine | steps/s | env-steps/s | vehicles/env "
-        "| vehicle-steps/s |",
-        "|---|---:|---|---:|---:|---:|---:|",
+        "| queue/env | vehicle-steps/s |",
+        "|---|---:|---|---:|---:|---:|---:|---:|",
     ]
     for r in results:
         lines.append(
             f"| {r['grid']} | {r['density']:.0f} | {r['engine']} | {_num(r['steps_per_s'])} "
-            f"| {_num(r['env_steps_per_s'])} | {r['mean_vehicles']:.0f} "
+            f"| {_num(r['env_steps_per_s'])} | {r['mean_vehicles']:.0f} | {r['queue']:.0f} "
             f"| {_num(r['vehicle_steps_per_s'])} |"
         )
     if ratio_rows:
-        batches = sorted({int(k[6:].split("_")[0]) for r in ratio_rows for k in r
-                          if k.startswith("core_b")})
         lines += [
             "",
-            "| grid | density | env steps/s ÷ SUMO steps/s | "
-            + " | ".join(f"core B={b} veh-steps/s ÷ SUMO" for b in batches) + " |",
-            "|---|---:|---:|" + "---:|" * len(batches),
+            "Ratios to SUMO with `unregulated` junctions (same grid, demand and run):",
+            "",
+            "| grid | density | engine | **vehicle-steps/s ÷ SUMO-unreg.** | steps/s ÷ SUMO "
+            "| vehicles/env (SUMO) | queue/env (SUMO) |",
+            "|---|---:|---|---:|---:|---:|---:|",
         ]
         for r in ratio_rows:
-            env_ratio = r.get("env_vs_sumo_steps")
-            cells = [f"{env_ratio:.2f}" if env_ratio is not None else "-"]
-            for b in batches:
-                v = r.get(f"core_b{b}_vs_sumo_vehicle_steps")
-                cells.append(f"{v:.2f}" if v is not None else "-")
-            lines.append(f"| {r['grid']} | {r['density']:.0f} | " + " | ".join(cells) + " |")
+            lines.append(
+                f"| {r['grid']} | {r['density']:.0f} | {r['engine']} "
+                f"| **{r['vehicle_steps_ratio']:.2f}** | {r['steps_ratio']:.2f} "
+                f"| {r['vehicles']:.0f} ({r['peer_vehicles']:.0f}) "
+                f"| {r['queue']:.0f} ({r['peer_queue']:.0f}) |"
+            )
     lines.append("")
     for f in floor.values():
         if f["met"] is None:
-            verdict = "NOT MEASURED (needs 3x3, 2100 veh/lane/h, B=64 and SUMO in the run)"
+            verdict = (f"NOT MEASURED (needs 3x3, 2100 veh/lane/h, {f['engine']} and SUMO "
+                       "unregulated in the run)")
         else:
             verdict = (f"{'MET' if f['met'] else 'NOT MET'} "
                        f"(measured {f['measured_ratio']:.2f}x, need {f['required_ratio']:g}x)")
@@ -311,8 +350,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="grids as RxC (default 1x1 3x3)")
     p.add_argument("--densities", type=float, nargs="+", default=[300, 900, 1500, 2100],
                    help="veh/lane/h (default 300 900 1500 2100)")
-    p.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64],
-                   help="batch sizes of the bare core (default 1 16 64)")
+    p.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256],
+                   help="batch sizes of the bare core (default 1 16 64 256)")
+    p.add_argument("--env-batches", type=int, nargs="*", default=[1, 16, 64, 256],
+                   help="batch sizes of the batched env (default 1 16 64 256; none: skip)")
+    p.add_argument("--env-schemes", nargs="*", default=["E", "EEC"], choices=("E", "EE", "EEC"),
+                   help="schemes of the full ParallelEnv step (default E EEC; none: skip)")
+    p.add_argument("--sumo-junctions", nargs="*", choices=sumo_reference.JUNCTION_TYPES,
+                   default=["unregulated", "right_before_left", "traffic_light"],
+                   help="SUMO junction types (default unregulated right_before_left "
+                   "traffic_light; unregulated is the peer of every ratio)")
     p.add_argument("--steps", type=int, default=2000, help="timed steps (default 2000)")
     p.add_argument("--warmup", type=int, default=600, help="untimed steps first (default 600)")
     p.add_argument("--repeats", type=int, default=1,
@@ -320,9 +367,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-sumo", action="store_true", help="skip SUMO even if installed")
-    p.add_argument("--no-env", action="store_true", help="skip the full ParallelEnv step")
+    p.add_argument("--no-env", action="store_true",
+                   help="skip the ParallelEnv and batched env rows")
     p.add_argument("--quick", action="store_true",
-                   help="tiny run for tests: 1x1, 900 veh/lane/h, B=1,4, 30 steps, 10 warm-up")
+                   help="tiny run for tests: 1x1, 900 veh/lane/h, core B=1,4, batched env B=2, "
+                   "30 steps, 10 warm-up")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT,
                    help=f"output folder (default {DEFAULT_OUT.relative_to(HERE.parent)})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -334,17 +383,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.quick:
         args.grids, args.densities, args.batches = [(1, 1)], [900.0], [1, 4]
+        args.env_batches = [2]
         args.steps, args.warmup, args.repeats = 30, 10, 1
     for name in ("steps", "repeats"):
         if getattr(args, name) < 1:
             print(f"speed.py: error: --{name} must be >= 1", file=sys.stderr)
             return 2
-    if args.warmup < 0 or any(b < 1 for b in args.batches) or any(
+    if args.warmup < 0 or any(b < 1 for b in [*args.batches, *args.env_batches]) or any(
         d <= 0 for d in args.densities
     ):
-        print("speed.py: error: --warmup >= 0, --batches >= 1, --densities > 0", file=sys.stderr)
+        print("speed.py: error: --warmup >= 0, --batches/--env-batches >= 1, --densities > 0",
+              file=sys.stderr)
         return 2
-    use_sumo = not args.no_sumo and sumo_reference.sumo_available()
+    use_sumo = not args.no_sumo and sumo_reference.sumo_available() and bool(args.sumo_junctions)
+    env_schemes = [] if args.no_env else args.env_schemes
+    env_batches = [] if args.no_env or not batched_available() else args.env_batches
 
     # Per grid and density, the engines run one after the other and the repeats go round-robin
     # over them, so load from other processes hits mivecc and SUMO alike.
@@ -355,12 +408,18 @@ def main(argv: Sequence[str] | None = None) -> int:
             kw = {"rows": rows, "cols": cols, "density": density, "steps": args.steps,
                   "warmup": args.warmup, "seed": args.seed}
             group: list[tuple[str, Callable[[], dict[str, Any]]]] = []
-            if not args.no_env:
-                group.append((f"{tag} env", functools.partial(measure_env, **kw)))
+            for scheme in env_schemes:
+                group.append((f"{tag} env {scheme}",
+                              functools.partial(measure_env, scheme=scheme, **kw)))
+            for b in env_batches:
+                group.append((f"{tag} batched B={b}",
+                              functools.partial(measure_batched, batch=b, **kw)))
             for b in args.batches:
                 group.append((f"{tag} core B={b}", functools.partial(measure_core, batch=b, **kw)))
             if use_sumo:
-                group.append((f"{tag} sumo", functools.partial(measure_sumo, **kw)))
+                for junction in args.sumo_junctions:
+                    group.append((f"{tag} sumo {junction}", functools.partial(
+                        measure_sumo, junction_type=junction, **kw)))
             groups.append(group)
 
     from tqdm.auto import tqdm
@@ -383,6 +442,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     text = markdown_tables(results, ratio_rows, floor)
     if not use_sumo:
         text += "\n\nSUMO not run (" + ("--no-sumo" if args.no_sumo else "not installed") + ")."
+    if not args.no_env and not batched_available():
+        text += "\n\nBatched env not measured (mivecc_env.batched is not in this checkout)."
     given = sys.argv[1:] if argv is None else list(argv)
     command = shlex.join(["python", "benchmarks/speed.py", *given])
     document = {
@@ -390,7 +451,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "machine": machine_info(),
         "settings": {
             "grids": [f"{r}x{c}" for r, c in args.grids], "densities": args.densities,
-            "batches": args.batches, "steps": args.steps, "warmup": args.warmup,
+            "batches": args.batches, "env_batches": env_batches, "env_schemes": env_schemes,
+            "sumo_junctions": args.sumo_junctions if use_sumo else [],
+            "steps": args.steps, "warmup": args.warmup,
             "repeats": args.repeats, "seed": args.seed, "sumo": use_sumo,
             "env": not args.no_env,
         },

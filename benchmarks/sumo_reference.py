@@ -1,20 +1,26 @@
-"""Outside reference: Eclipse SUMO speed on the same unsignalized grid as ``mivecc``.
+"""Outside reference: Eclipse SUMO speed on the same grid and demand as ``mivecc``.
 
 Network (``netgenerate``, in a temporary directory): ``rows`` x ``cols`` junctions,
 150 m apart, with 150 m approach/exit links on every side, one lane per direction,
-no U-turns, no traffic lights. Junction type ``right_before_left`` by default (SUMO's
-uncontrolled equal-priority junction: each approach yields to the one on its right, no
-direction is favoured); ``junction_type="priority"`` is the alternative (netconvert then
-ranks the equal-priority approaches so one direction has right of way). Demand: one
-Poisson flow per entry lane (``period="exp(rate)"``, rate = density / 3600 veh/s,
-departSpeed 10 m/s), 2*rows + 2*cols straight routes to the opposite boundary.
-Vehicle: length 2 m, maxSpeed 13 m/s, accel/decel 3 m/s^2, minGap 1 m, Krauss
-``sigma=0``. Simulation: 0.1 s steps, ``--seed``, ``--time-to-teleport -1``
-(teleporting off, so jams stay jams; ``teleports`` in the result should be 0).
+no U-turns. Junction types (``junction_type``):
 
-Caveat: SUMO's gap acceptance at these junctions saturates early; from roughly
-900 veh/lane/h the grid reaches no steady state (vehicle count and insertion backlog
-keep growing, no permanent deadlock seen). Compare per-vehicle-step speeds there.
+* ``unregulated`` (default, the like-for-like peer of mivecc's free-flowing unsignalized
+  grid): SUMO lets vehicles cross without any right-of-way rule, so the grid never jams and
+  SUMO does only its car-following and movement work;
+* ``right_before_left`` (SUMO's uncontrolled equal-priority junction: each approach yields to
+  the one on its right) and ``priority`` (netconvert ranks the approaches): gap acceptance
+  that saturates early, from roughly 900 veh/lane/h the grid jams (vehicle count and
+  insertion backlog keep growing);
+* ``traffic_light``: SUMO's default static two-phase fixed-time programme at every junction
+  (42 s green, 3 s yellow per phase), which also jams at high demand.
+
+Demand: one Poisson flow per entry lane (``period="exp(rate)"``, rate = density / 3600 veh/s,
+departSpeed 10 m/s), 2*rows + 2*cols straight routes from each fringe node to the opposite
+one (fringe nodes are found as the nodes with a single neighbour: with ``unregulated`` they
+are not ``dead_end`` junctions). Vehicle: length 2 m, maxSpeed 13 m/s, accel/decel 3 m/s^2,
+minGap 1 m, Krauss ``sigma=0``. Simulation: 0.1 s steps, ``--seed``, ``--time-to-teleport -1``
+(teleporting off, so jams stay jams; ``teleports`` in the result should be 0). A run in which
+SUMO inserted no vehicle raises RuntimeError (it would time an empty network).
 
 Timing: ``warmup_steps`` untimed steps, then ``steps`` calls of
 ``libsumo.simulationStep()`` timed with ``time.perf_counter()``. The per-step
@@ -39,7 +45,7 @@ import tempfile
 import time
 from typing import Any
 
-JUNCTION_TYPES = ("right_before_left", "priority")
+JUNCTION_TYPES = ("unregulated", "right_before_left", "priority", "traffic_light")
 STEP_LENGTH_S = 0.1
 SPACING_M = 150.0
 _INSTALL_HINT = "Eclipse SUMO is not installed; install it with `pip install mivecc[sumo]`."
@@ -113,14 +119,20 @@ def _through_routes(net: str) -> list[tuple[str, str]]:
     import xml.etree.ElementTree as ET
 
     root = ET.parse(net).getroot()
-    fringe: dict[str, tuple[int, int]] = {}
-    inner_x: set[int] = set()
+    xy: dict[str, tuple[int, int]] = {}
     for j in root.iter("junction"):
-        xy = (round(float(j.get("x", 0))), round(float(j.get("y", 0))))
-        if j.get("type") == "dead_end":
-            fringe[j.get("id", "")] = xy
-        elif j.get("type") != "internal":
-            inner_x.add(xy[0])
+        if j.get("type") != "internal":
+            xy[j.get("id", "")] = (round(float(j.get("x", 0))), round(float(j.get("y", 0))))
+    neighbours: dict[str, set[str]] = {node: set() for node in xy}
+    for e in root.iter("edge"):
+        if e.get("function") != "internal":
+            a, b = e.get("from", ""), e.get("to", "")
+            neighbours[a].add(b)
+            neighbours[b].add(a)
+    # Fringe nodes have one neighbour (their junction type is dead_end, or e.g. unregulated
+    # when every junction is made unregulated).
+    fringe = {node: xy[node] for node, nb in neighbours.items() if len(nb) == 1}
+    inner_x = {xy[node][0] for node in xy if node not in fringe}
     entry: dict[str, str] = {}
     exit_: dict[str, str] = {}
     for e in root.iter("edge"):
@@ -169,7 +181,7 @@ def run_sumo(
     steps: int,
     seed: int = 0,
     warmup_steps: int = 600,
-    junction_type: str = "right_before_left",
+    junction_type: str = "unregulated",
 ) -> dict[str, Any]:
     """Time SUMO (libsumo) on the straight-through unsignalized grid.
 
@@ -180,7 +192,7 @@ def run_sumo(
         steps: Number of timed 0.1 s steps (>= 1).
         seed: SUMO ``--seed`` for the arrival streams.
         warmup_steps: Untimed 0.1 s steps run first so that the network fills (>= 0).
-        junction_type: ``"right_before_left"`` (default) or ``"priority"``.
+        junction_type: one of :data:`JUNCTION_TYPES` (default ``"unregulated"``).
 
     Returns:
         Dict with ``steps_per_s`` (timed steps per wall-clock second),
@@ -190,12 +202,14 @@ def run_sumo(
         ``sumo_version``, ``junction_type``, plus diagnostics ``seed``,
         ``warmup_steps``, ``teleports`` (0 expected: teleporting is disabled),
         ``inserted`` (vehicles inserted so far), ``insertion_backlog`` (vehicles
-        waiting to enter at the end) and ``count_call_us`` (cost of one
+        waiting to enter at the end), ``queue_start`` (the backlog after the warm-up),
+        and ``count_call_us`` (cost of one
         ``getIDCount`` call, in microseconds, included in ``elapsed_s``).
 
     Raises:
         ValueError: If an argument is out of range.
         ImportError: If SUMO / libsumo is not installed.
+        RuntimeError: If SUMO inserted no vehicle (the routes did not load).
     """
     _validate(rows, cols, density, steps, warmup_steps, junction_type)
     try:
@@ -216,6 +230,7 @@ def run_sumo(
             step, count = libsumo.simulationStep, libsumo.vehicle.getIDCount
             for _ in range(warmup_steps):
                 step()
+            queue_start = libsumo.simulation.getMinExpectedNumber() - count()
             total = 0
             t0 = time.perf_counter()
             for _ in range(steps):
@@ -235,6 +250,11 @@ def run_sumo(
             version = libsumo.getVersion()[1]
         finally:
             libsumo.close()
+    if inserted == 0 or total == 0:
+        raise RuntimeError(
+            f"SUMO carried no vehicles on the {rows}x{cols} {junction_type} grid "
+            f"(inserted {inserted}): the routes or the demand did not load"
+        )
     return {
         "steps_per_s": steps / elapsed,
         "vehicle_steps_per_s": total / elapsed,
@@ -251,6 +271,7 @@ def run_sumo(
         "teleports": teleports,
         "inserted": inserted,
         "insertion_backlog": int(backlog),
+        "queue_start": int(queue_start),
         "count_call_us": count_us,
     }
 

@@ -61,7 +61,8 @@ def test_run_1x1_and_determinism() -> None:
     assert res.keys() >= KEYS
     assert res["mean_vehicles"] > 0
     assert res["steps"] == 200 and res["rows"] == 1 and res["cols"] == 1
-    assert res["junction_type"] == "right_before_left"
+    assert res["junction_type"] == "unregulated"
+    assert res["inserted"] > 0
     assert res["sumo_version"].startswith("SUMO")
     for key in ("steps_per_s", "vehicle_steps_per_s", "elapsed_s"):
         assert math.isfinite(res[key]) and res[key] > 0, key
@@ -83,3 +84,32 @@ def test_missing_sumo_gives_install_hint(monkeypatch: pytest.MonkeyPatch) -> Non
     assert sumo_reference.sumo_available() is False
     with pytest.raises(ImportError, match=r"mivecc\[sumo\]"):
         sumo_reference.run_sumo(1, 1, 900.0, steps=10)
+
+
+@pytest.mark.sumo
+@needs_sumo
+@pytest.mark.parametrize("junction_type", sumo_reference.JUNCTION_TYPES)
+def test_every_junction_type_has_all_through_routes(tmp_path: Path, junction_type: str) -> None:
+    # With unregulated junctions the fringe nodes are not dead_end junctions: the routes must
+    # still be found (they were not, and SUMO ran an empty network).
+    net = sumo_reference._build_net(str(tmp_path), 2, 3, junction_type)
+    routes = sumo_reference._through_routes(net)
+    assert len(routes) == 2 * 2 + 2 * 3
+    assert len({src for src, _ in routes}) == len(routes)
+
+
+@pytest.mark.sumo
+@needs_sumo
+def test_unregulated_grid_carries_vehicles() -> None:
+    res = sumo_reference.run_sumo(2, 2, 1500.0, steps=100, seed=0, warmup_steps=400,
+                                  junction_type="unregulated")
+    assert res["inserted"] > 20 and res["mean_vehicles"] > 10
+    assert res["teleports"] == 0
+
+
+@pytest.mark.sumo
+@needs_sumo
+def test_empty_run_raises(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(sumo_reference, "_through_routes", lambda net: [])
+    with pytest.raises(RuntimeError, match="no vehicles"):
+        sumo_reference.run_sumo(1, 1, 900.0, steps=20, warmup_steps=20)

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.sim import checks, end_node, signals
+from mivecc_env.sim import checks, end_node, signals, step_kernels
 from mivecc_env.sim.arrivals import ArrivalProcess
 from mivecc_env.sim.near_miss import NearMissStats
 from mivecc_env.sim.network import GridNetwork
@@ -180,6 +180,18 @@ class Simulator:
 
     def _compute_safety(self, view: VirtualLaneView) -> VehicleSafety:
         c = self.config
+        fast = step_kernels.safety_inputs(
+            self.v.ravel(), self.a.ravel(), view.vehicle, view.point_vehicle, view.front_point,
+            view.back_point, view.d_front, view.d_back, c.sv_acc_source == "ego",
+        )
+        d_nearest, ttc, acc = fast if fast is not None else self._safety_inputs_reference(view)
+        sv = safety_value(d_nearest, ttc, view.d_front, acc, c)
+        return VehicleSafety(sv=sv, d_front=view.d_front, d_back=view.d_back, ttc=ttc)
+
+    def _safety_inputs_reference(
+        self, view: VirtualLaneView
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """(nearest distance [m], time to collision [s], SV_acc acceleration [m/s^2])."""
         v = self.v.ravel()[view.vehicle]
         a = self.a.ravel()[view.vehicle]
         pv = view.point_vehicle
@@ -192,9 +204,8 @@ class Simulator:
         d_nearest = np.minimum(view.d_front, view.d_back)
         closing = np.where(ahead, v - v_front, v_back - v)
         ttc = np.where(np.isfinite(d_nearest), time_to_collision(d_nearest, closing), np.inf)
-        acc = a if c.sv_acc_source == "ego" else np.where(has_f, a[fi], 0.0)
-        sv = safety_value(d_nearest, ttc, view.d_front, acc, c)
-        return VehicleSafety(sv=sv, d_front=view.d_front, d_back=view.d_back, ttc=ttc)
+        acc = a if self.config.sv_acc_source == "ego" else np.where(has_f, a[fi], 0.0)
+        return d_nearest, ttc, acc
 
     # ------------------------------------------------------------------------------------
     # stepping
@@ -321,13 +332,17 @@ class Simulator:
         if not want.any():
             return
         # A lane is blocked while any of its vehicles is closer than the clearance to its entry.
-        blocked = np.zeros_like(want)
         clearance = (signals.entry_clearance_m(c) if c.control == "signalized"
                      else c.entry_clearance_m)
-        near = self.active & (self.s < clearance)
-        if near.any():
-            bb, kk = np.nonzero(near)
-            blocked[bb, self.lane[bb, kk]] = True
+        blocked = step_kernels.blocked_entries(
+            self.active, self.lane, self.s, clearance, self.network.n_lanes
+        )
+        if blocked is None:
+            blocked = np.zeros_like(want)
+            near = self.active & (self.s < clearance)
+            if near.any():
+                bb, kk = np.nonzero(near)
+                blocked[bb, self.lane[bb, kk]] = True
         go = want & ~blocked
         env, lane = np.nonzero(go)
         if env.size == 0:
@@ -380,6 +395,27 @@ def collision_pairs(
     vehicle_length_m: float,
 ) -> IntArray:
     """(k, 2) view indices of vehicle pairs closer than ``vehicle_length_m`` after a move.
+
+    The compiled kernel :func:`mivecc_env.sim.step_kernels.collision_pairs` when numba is
+    installed, else :func:`collision_pairs_reference` (identical results).
+    """
+    fast = step_kernels.collision_pairs(
+        view.leader, s_new, exited, view.lane, view.env, network.lane_cp, network.lane_cp_s,
+        network.n_cp, network.segment_length_m, network.lane_offset_m, vehicle_length_m,
+    )
+    if fast is not None:
+        return fast
+    return collision_pairs_reference(network, view, s_new, exited, vehicle_length_m)
+
+
+def collision_pairs_reference(
+    network: GridNetwork,
+    view: VirtualLaneView,
+    s_new: FloatArray,
+    exited: NDArray[np.bool_],
+    vehicle_length_m: float,
+) -> IntArray:
+    """(k, 2) view indices of vehicle pairs closer than ``vehicle_length_m`` (numpy reference).
 
     Two vehicles can only be that close on the same lane (checked between own-lane neighbours,
     whose order cannot change within one step) or on two crossing lanes near their shared

@@ -61,8 +61,10 @@ def safety_value(
 
     ttc = np.asarray(ttc_s, dtype=np.float64)
     sensitive = (ttc > 0.0) & (ttc < 1.0)
-    t = np.clip(np.where(sensitive, ttc, 0.5), MIN_TTC_S, 1.0)
-    sv_t = np.where(sensitive, -((c.sv_alpha_t / np.tanh(t)) ** c.sv_beta_t), SV_T_SAFE)
+    sv_t = np.full(ttc.shape, SV_T_SAFE)
+    if sensitive.any():  # tanh and the power only where 0 < TTC < 1 s (few vehicles)
+        t = np.maximum(ttc[sensitive], MIN_TTC_S)
+        sv_t[sensitive] = -((c.sv_alpha_t / np.tanh(t)) ** c.sv_beta_t)
 
     d_front = np.maximum(np.asarray(d_front_m, dtype=np.float64), MIN_DISTANCE_M)
     has_front = np.isfinite(d_front)

@@ -1,0 +1,132 @@
+"""The compiled kernels give exactly the numpy reference paths' results (bit for bit).
+
+Two ways: each kernel against its reference on many states (including crowded random ones that
+force collisions and ties), and whole trajectories of the simulator with the kernels on and off
+(every state array after every step).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import step_kernels, view_kernel
+from mivecc_env.sim.core import Simulator, collision_pairs, collision_pairs_reference
+from mivecc_env.sim.virtual_lane import build_view, build_view_reference
+
+pytestmark = pytest.mark.skipif(not view_kernel.HAVE_NUMBA, reason="numba not installed")
+
+STATE = ("active", "lane", "s", "v", "a", "t_arrive", "t_enter", "vid", "exited", "collided",
+         "collision_events", "sum_travel_velocity", "sum_travel_velocity_no_wait",
+         "sum_trip_time", "sum_wait_time", "sum_speed_samples", "vehicle_steps")
+
+
+def _no_kernels(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(view_kernel, "HAVE_NUMBA", False)
+    monkeypatch.setattr(step_kernels, "HAVE_NUMBA", False)
+
+
+def _assert_same_view(a, b) -> None:
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        assert x.dtype == y.dtype, f.name
+        np.testing.assert_array_equal(x, y, err_msg=f.name)
+
+
+def _actions(sim: Simulator, rng: np.random.Generator, scheme: str):
+    if scheme == "E":
+        return None, None
+    shape = sim.active.shape
+    edge = np.where(rng.random(shape) < 0.7, rng.uniform(-3, 3, shape), np.nan)
+    cloud = np.where(rng.random(shape) < 0.5, rng.uniform(-3, 3, shape), np.nan)
+    return edge, (cloud if scheme == "EEC" else None)
+
+
+CASES = [
+    (MiVeCCConfig(rows=3, cols=3, density_vplh=2100, scheme="EEC"), 3),
+    (MiVeCCConfig(rows=2, cols=1, density_vplh=1500, scheme="EE"), 7),
+    (MiVeCCConfig(rows=1, cols=1, density_vplh=2100, control="signalized"), 2),
+    (MiVeCCConfig(rows=1, cols=2, density_vplh=900, scheme="E", projection_window_m=140.0), 2),
+]
+
+
+@pytest.mark.parametrize(("cfg", "batch"), CASES)
+def test_trajectory_identical_with_and_without_kernels(
+    cfg: MiVeCCConfig, batch: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    fast = Simulator(cfg, batch_size=batch, seed=11)
+    with monkeypatch.context() as m:
+        _no_kernels(m)
+        ref = Simulator(cfg, batch_size=batch, seed=11)
+    rng_f, rng_r = np.random.default_rng(5), np.random.default_rng(5)
+    for step in range(500):
+        fast.step(*_actions(fast, rng_f, cfg.scheme))
+        with monkeypatch.context() as m:
+            _no_kernels(m)
+            ref.step(*_actions(ref, rng_r, cfg.scheme))
+        for name in STATE:
+            np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name),
+                                          err_msg=f"{name} at step {step}")
+        np.testing.assert_array_equal(fast.safety.sv, ref.safety.sv)
+        np.testing.assert_array_equal(fast.safety.ttc, ref.safety.ttc)
+    _assert_same_view(fast.view, ref.view)
+    assert fast.in_network.sum() > 0
+
+
+def _crowded(cfg: MiVeCCConfig, batch: int, per_env: int, seed: int):
+    """Random vehicles on random lanes (many close pairs, exact ties of positions)."""
+    sim = Simulator(cfg, batch_size=batch, seed=seed, capacity=per_env)
+    rng = np.random.default_rng(seed)
+    n_lanes = sim.network.n_lanes
+    sim.active[:] = rng.random(sim.active.shape) < 0.8
+    sim.lane[:] = rng.integers(0, n_lanes, sim.active.shape)
+    length = sim.network.lane_length[sim.lane]
+    s = rng.uniform(0, 1, sim.active.shape) * length
+    s[:, ::7] = np.round(s[:, ::7])  # exact ties between vehicles and projections
+    sim.s[:] = np.minimum(s, length - 1e-9)
+    sim.v[:] = rng.uniform(6, 13, sim.active.shape)
+    sim.a[:] = rng.uniform(-3, 3, sim.active.shape)
+    return sim
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kernels_match_references_on_crowded_states(seed: int) -> None:
+    wide = MiVeCCConfig(rows=1, cols=2, projection_window_m=140.0)  # overlapping windows
+    for cfg in (MiVeCCConfig(rows=3, cols=3), wide,
+                MiVeCCConfig(rows=2, cols=2, sv_acc_source="front")):
+        sim = _crowded(cfg, batch=4, per_env=120, seed=seed)
+        args = (sim.network, cfg.projection_window_m, cfg.projection_clear_m, sim.active,
+                sim.lane, sim.s)
+        view = build_view(*args)
+        _assert_same_view(view, build_view_reference(*args))
+
+        d, ttc, acc = step_kernels.safety_inputs(
+            sim.v.ravel(), sim.a.ravel(), view.vehicle, view.point_vehicle, view.front_point,
+            view.back_point, view.d_front, view.d_back, cfg.sv_acc_source == "ego")
+        ref = sim._safety_inputs_reference(view)
+        for x, y in zip((d, ttc, acc), ref, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+        rng = np.random.default_rng(seed)
+        s_new = view.s + rng.uniform(0, 1.5, view.n_vehicles)
+        out = rng.random(view.n_vehicles) < 0.1
+        got = collision_pairs(sim.network, view, s_new, out, cfg.vehicle_length_m)
+        want = collision_pairs_reference(sim.network, view, s_new, out, cfg.vehicle_length_m)
+        assert want.shape[0] > 0
+        np.testing.assert_array_equal(got, want)
+
+        blocked = step_kernels.blocked_entries(sim.active, sim.lane, sim.s, 7.0,
+                                               sim.network.n_lanes)
+        expect = np.zeros_like(blocked)
+        bb, kk = np.nonzero(sim.active & (sim.s < 7.0))
+        expect[bb, sim.lane[bb, kk]] = True
+        np.testing.assert_array_equal(blocked, expect)
+
+
+def test_empty_network_view() -> None:
+    sim = Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=3)
+    args = (sim.network, 10.0, 5.0, sim.active, sim.lane, sim.s)
+    _assert_same_view(build_view(*args), build_view_reference(*args))
