@@ -42,7 +42,7 @@ KEYS = {
         ({"density": float("nan")}, "density"),
         ({"steps": 0}, "steps"),
         ({"warmup_steps": -1}, "warmup_steps"),
-        ({"junction_type": "traffic_light"}, "junction_type"),
+        ({"junction_type": "zipper_roundabout"}, "junction_type"),
     ],
 )
 def test_bad_args_raise_value_error(kwargs: dict, field: str) -> None:
