@@ -1,0 +1,108 @@
+"""Where the time of one step goes: cProfile split of the bare core and the full env step.
+
+Runs ``--warmup`` untimed steps, then ``--steps`` steps under ``cProfile`` and prints, for
+each phase, its cumulative time per step and its share of the step (phases nest: the core's
+phases are parts of ``Simulator.step``, which is part of the env step). cProfile adds its own
+overhead per Python call (most to the many small numpy calls), so read the shares, not the
+absolute times; ``benchmarks/speed.py`` gives the speeds.
+
+Usage::
+
+    python benchmarks/profile_step.py --grid 3x3 --density 2100 --batch 64
+    python benchmarks/profile_step.py --grid 3x3 --density 2100 --env EEC   # ParallelEnv, B=1
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import sys
+from collections.abc import Callable
+
+import numpy as np
+
+#: (label, module file suffix, function name) of the phases reported.
+PHASES = (
+    ("env step (all)", "parallel_env.py", "step"),
+    ("  core: Simulator.step", "core.py", "step"),
+    ("    virtual-lane view (build_view)", "virtual_lane.py", "build_view"),
+    ("      view kernel pass 1 (points, keys)", "view_kernel.py", "_points"),
+    ("      view sort (np.sort of packed keys)", "~", "<method 'sort' of 'numpy.ndarray' objects>"),
+    ("      view kernel pass 2 (neighbours)", "view_kernel.py", "_neighbours"),
+    ("    safety values (_compute_safety)", "core.py", "_compute_safety"),
+    ("      safety_value (logs, tanh)", "safety.py", "safety_value"),
+    ("    accelerations (_unsignalized_accel)", "core.py", "_unsignalized_accel"),
+    ("    signalized accelerations", "signals.py", "signalized_accel"),
+    ("    motion (bounded_motion)", "end_node.py", "bounded_motion"),
+    ("    exits (_record_exits)", "core.py", "_record_exits"),
+    ("    collisions (_remove_collisions)", "core.py", "_remove_collisions"),
+    ("    entries (_enter_vehicles)", "core.py", "_enter_vehicles"),
+    ("      arrivals.advance", "arrivals.py", "advance"),
+    ("  edge state graphs", "state_graph.py", "edge_graphs"),
+    ("  cloud state graph", "state_graph.py", "cloud_graphs"),
+)
+
+
+def split(stats: pstats.Stats, steps: int) -> list[tuple[str, float]]:
+    """(label, cumulative microseconds per step) of every phase that ran."""
+    table = stats.stats  # type: ignore[attr-defined]
+    out = []
+    for label, suffix, name in PHASES:
+        total = sum(v[3] for (file, _line, fn), v in table.items()
+                    if fn == name and file.endswith(suffix))
+        if total > 0:
+            out.append((label, total / steps * 1e6))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--grid", default="3x3")
+    p.add_argument("--density", type=float, default=2100.0)
+    p.add_argument("--batch", type=int, default=1, help="core batch size (ignored with --env)")
+    p.add_argument("--env", choices=("E", "EE", "EEC"), default=None,
+                   help="profile the full ParallelEnv step (B=1) of this scheme instead")
+    p.add_argument("--steps", type=int, default=300)
+    p.add_argument("--warmup", type=int, default=600)
+    a = p.parse_args(argv)
+    rows, cols = (int(x) for x in a.grid.split("x"))
+    step: Callable[[], object]
+    if a.env:
+        from mivecc_env import mivecc_v0
+
+        env = mivecc_v0.parallel_env(rows=rows, cols=cols, density=a.density, scheme=a.env,
+                                     max_steps=a.warmup + a.steps + 10)
+        env.reset(seed=0)
+        act = {x: np.zeros(env.action_space(x).shape, np.float32) for x in env.possible_agents}
+
+        def step() -> object:
+            return env.step(act)
+
+        what = f"ParallelEnv.step scheme {a.env}, B=1"
+    else:
+        from mivecc_env.config import MiVeCCConfig
+        from mivecc_env.sim.core import Simulator
+
+        sim = Simulator(MiVeCCConfig(rows=rows, cols=cols, density_vplh=a.density), a.batch,
+                        seed=0)
+        step = sim.step
+        what = f"Simulator.step scheme E, B={a.batch}"
+    for _ in range(a.warmup):
+        step()
+    prof = cProfile.Profile()
+    prof.enable()
+    for _ in range(a.steps):
+        step()
+    prof.disable()
+    rows_out = split(pstats.Stats(prof), a.steps)
+    top = rows_out[0][1] if rows_out else 1.0
+    print(f"{what}, {a.grid}, {a.density:g} veh/lane/h, {a.steps} profiled steps")
+    print(f"{'phase':<45} {'us/step':>9} {'share':>7}")
+    for label, us in rows_out:
+        print(f"{label:<45} {us:>9.0f} {us / top:>7.0%}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
