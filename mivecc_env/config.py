@@ -22,7 +22,8 @@ from typing import Any, Literal
 import numpy as np
 
 Scheme = Literal["E", "EE", "EEC"]
-Control = Literal["unsignalized", "signalized"]
+Control = Literal["unsignalized", "signalized", "reservation", "optimisation"]
+SignalController = Literal["fixed-time", "actuated", "max-pressure"]
 EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
 
@@ -180,8 +181,57 @@ class MiVeCCConfig:
         "E: end rules only; EE: rules + edge actions; EEC: rules + edge + cloud actions",
     )
     control: Control = _choice(
-        "unsignalized", ("unsignalized", "signalized"),
-        "signalized: fixed-time signal heads and IDM car-following, v in [0, v_max]",
+        "unsignalized", ("unsignalized", "signalized", "reservation", "optimisation"),
+        "signalized: signal heads (signal_controller) and IDM car-following, v in [0, v_max]; "
+        "reservation: AIM first-come-first-served slots at the conflict points; optimisation: "
+        "DOOC-style arrival-time MILP per intersection (both v in [0, v_max], "
+        "docs/comparators.md)",
+    )
+    signal_controller: SignalController = _choice(
+        "fixed-time", ("fixed-time", "actuated", "max-pressure"),
+        "signal controller when no signal agent acts: fixed-time plan, actuated (gap-out / "
+        "max-out) or max-pressure (Varaiya)",
+    )
+    signal_min_green_s: float = _num(
+        10.0, 0.0, 600.0, "minimum green of a phase (actuated, max-pressure, signal agents)"
+    )
+    signal_max_green_s: float = _num(
+        40.0, 1.0, 600.0, "actuated: maximum green of a phase (max-out)"
+    )
+    actuated_gap_s: float = _num(
+        3.0, 0.1, 60.0, "actuated: passage time; the phase gaps out after this long without a "
+        "vehicle in its detection zones"
+    )
+    actuated_detector_m: float = _num(
+        30.0, 1.0, 1000.0, "actuated: length of the detection zone before each stop line"
+    )
+    reservation_margin_m: float = _num(
+        0.5, 0.0, 50.0, "reservation / optimisation: margin added to the vehicle size, both "
+        "for a conflict point's occupancy radius and for the same-lane gap"
+    )
+    reservation_buffer_s: float = _num(
+        0.2, 0.0, 10.0, "reservation: time buffer on each side of a granted slot"
+    )
+    reservation_v_cross_min_mps: float = _num(
+        3.0, 0.5, 40.0, "reservation / optimisation: slowest cruise velocity of a planned "
+        "trajectory through an intersection"
+    )
+    reservation_retry_s: float = _num(
+        0.5, 0.0, 60.0, "reservation: a refused vehicle requests again after this long"
+    )
+    reservation_refused_speed_mps: float = _num(
+        6.0, 0.0, 40.0, "reservation: a refused vehicle slows towards this velocity"
+    )
+    optimisation_period_s: float = _num(
+        1.0, 0.0, 60.0, "optimisation: the arrival-time schedule is re-solved this often",
+        lo_open=True,
+    )
+    optimisation_headway_s: float = _num(
+        1.0, 0.0, 60.0, "optimisation: minimum time between two vehicles of crossing lanes "
+        "at a conflict point (and between same-lane vehicles)"
+    )
+    optimisation_max_vehicles: int = _int(
+        12, 1, 64, "optimisation: vehicles per intersection in one MILP (nearest first)"
     )
     signal_green_s: float = _num(30.0, 1.0, 600.0, "green time of each phase (signalized)")
     signal_yellow_s: float = _num(3.0, 0.0, 60.0, "yellow time of each phase (signalized)")
@@ -230,7 +280,7 @@ class MiVeCCConfig:
 
         need(self.v_min_mps < self.v_max_mps, "v_min_mps",
              f"must be below v_max_mps={self.v_max_mps}, got {self.v_min_mps}")
-        lo = 0.0 if self.control == "signalized" else self.v_min_mps
+        lo = 0.0 if self.control != "unsignalized" else self.v_min_mps
         need(lo <= self.v_init_mps <= self.v_max_mps, "v_init_mps",
              f"must be in [{lo}, {self.v_max_mps}], got {self.v_init_mps}")
         need(self.sv_min < self.sv_max, "sv_min", "must be below sv_max")
@@ -265,8 +315,8 @@ class MiVeCCConfig:
 
     @property
     def velocity_floor_mps(self) -> float:
-        """Velocity floor actually applied [m/s]: 0 under signals, else ``v_min_mps``."""
-        return 0.0 if self.control == "signalized" else self.v_min_mps
+        """Velocity floor actually applied [m/s]: ``v_min_mps`` unsignalized, else 0."""
+        return 0.0 if self.control != "unsignalized" else self.v_min_mps
 
     @property
     def n_intersections(self) -> int:

@@ -26,12 +26,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.sim import checks, end_node, signals, step_kernels
+from mivecc_env.sim import checks, controllers, end_node, signals, step_kernels
 from mivecc_env.sim.arrivals import ArrivalProcess
 from mivecc_env.sim.near_miss import NearMissStats
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.passing import PassingTimes
 from mivecc_env.sim.safety import safety_value, time_to_collision
+from mivecc_env.sim.signal_control import SignalPhases
 from mivecc_env.sim.virtual_lane import VirtualLaneView, build_view
 
 FloatArray = NDArray[np.float64]
@@ -122,6 +123,9 @@ class Simulator:
         self.passing = PassingTimes(self.network, b)
         self.near_miss = NearMissStats(self.network, b, self.config.vehicle_length_m)
         self.last_events = self._no_events()
+        self.controller = controllers.make_controller(self.config, self.network, self.batch_size)
+        self.signal_phases = (SignalPhases(self.config, self.network, self.batch_size)
+                              if self.config.control == "signalized" else None)
         self._refresh_view()
 
     def _seed_sequences(self, seed: int | Sequence[int] | None) -> list[np.random.SeedSequence]:
@@ -213,6 +217,7 @@ class Simulator:
         self,
         edge_accel: FloatArray | None = None,
         cloud_accel: FloatArray | None = None,
+        signal_phase: IntArray | None = None,
     ) -> StepEvents:
         """Advance every environment by one time step.
 
@@ -220,6 +225,9 @@ class Simulator:
             edge_accel: (B, capacity) edge action per vehicle slot [m/s^2], NaN where none.
             cloud_accel: (B, capacity) cloud action per vehicle slot [m/s^2], NaN where none.
                 Both are ignored under signalized control.
+            signal_phase: (B, n_intersections) phase a signal agent wants green (0 east-west,
+                1 north-south), -1 where the configured controller decides (signalized only;
+                timing enforced by ``sim/signal_control.py``).
 
         Raises:
             ValueError: an action array of another shape than ``(B, capacity)`` (capacity
@@ -229,12 +237,18 @@ class Simulator:
         shape = self.active.shape
         edge_accel = checks.check_accel("edge_accel", edge_accel, shape)
         cloud_accel = checks.check_accel("cloud_accel", cloud_accel, shape)
+        if signal_phase is not None and self.signal_phases is None:
+            raise ValueError("signal_phase: only under control='signalized', got control="
+                             f"{self.config.control!r}")
         c, view = self.config, self._view
         flat = view.vehicle
         s, v = self.s.ravel()[flat], self.v.ravel()[flat]
         lane = view.lane
         if c.control == "signalized":
             accel = signals.signalized_accel(self, view, s, v)
+            self.signal_phases.step(view, s, signal_phase)
+        elif self.controller is not None:  # reservation / optimisation (sim/controllers.py)
+            accel = self.controller.accel(self, view, s, v)
         else:
             accel = self._unsignalized_accel(view, s, v, edge_accel, cloud_accel)
         s_new, v_new, a_applied = end_node.bounded_motion(
@@ -332,7 +346,7 @@ class Simulator:
         if not want.any():
             return
         # A lane is blocked while any of its vehicles is closer than the clearance to its entry.
-        clearance = (signals.entry_clearance_m(c) if c.control == "signalized"
+        clearance = (signals.entry_clearance_m(c) if c.control != "unsignalized"
                      else c.entry_clearance_m)
         blocked = step_kernels.blocked_entries(
             self.active, self.lane, self.s, clearance, self.network.n_lanes

@@ -82,7 +82,7 @@ def signalized_accel(
     line = stop_s[np.arange(n), k]
     inter = net.lane_intersections[view.lane, k]
     phase = np.where(net.lane_horizontal[view.lane], 0, 1)
-    state = phase_states(c, sim.time_s)[np.maximum(inter, 0), phase]
+    state = sim.signal_phases.heads()[view.env, np.maximum(inter, 0), phase]
     dist = line - s
     can_stop = dist >= v * v / (2.0 * c.idm_comfort_decel_mps2)
     stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
