@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.sim import signals
 from mivecc_env.sim import signal_control as sc
+from mivecc_env.sim import signals
 from mivecc_env.sim.core import Simulator
 from mivecc_env.sim.network import GridNetwork
 from tests.sim._scenario import EAST, NORTH, SOUTH, WEST, place
