@@ -4,7 +4,7 @@ Commands (one ``add_<command>_parser`` and one ``cmd_<command>`` function each; 
 is added by writing those two and listing the first in :data:`COMMANDS`):
 
 * ``mivecc fields``: list the configuration fields that ``--set`` accepts.
-* ``mivecc evaluate``: run a scheme (``E``, ``EE``, ``EEC`` or the ``signalized`` baseline)
+* ``mivecc evaluate``: run a scheme (``E``, ``EE``, ``EEC`` or a comparator, e.g. ``max-pressure``)
   for some steps on one or more seeds and print the traffic metrics (a table, or JSON with
   ``--json``).
 
@@ -122,7 +122,8 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
         "EE/EEC without trained policies run with zero coordinator actions (with a warning).",
     )
     p.add_argument("--scheme", choices=SCHEMES, default="E",
-                   help="E, EE, EEC, or the fixed-time 'signalized' baseline (default E)")
+                   help="E, EE, EEC, or a comparator: fixed-time (alias signalized), actuated, "
+                   "max-pressure, reservation, optimisation (docs/comparators.md; default E)")
     add_config_arguments(p)
     p.add_argument("--steps", type=int, default=3000, help="env steps of 0.1 s (default 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")

@@ -5,8 +5,9 @@ steps and returns the traffic metrics of :func:`mivecc_env.metrics.episode_summa
 with the run's settings and its speed (env steps per wall-clock second).
 
 Schemes: ``E`` (end-node rules only), ``EE`` (rules + edge coordinators), ``EEC`` (rules + edge
-+ cloud coordinators) and the baseline ``signalized`` (fixed-time signals with IDM
-car-following: config ``control="signalized"``, scheme ``E``). The coordinators' actions come
++ cloud coordinators) and the comparators of :data:`COMPARATORS` (``fixed-time``, ``actuated``,
+``max-pressure`` signals with IDM car-following, ``reservation`` (AIM FCFS), ``optimisation``
+(DOOC-style); ``signalized`` is the earlier name of ``fixed-time``). The coordinators' actions come
 from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
 ``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
 ``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
@@ -36,8 +37,19 @@ from mivecc_env.parallel_env import CLOUD_AGENT
 #: A coordinator policy: (obs_batch (n, K, K, 3), mask (n, K)) -> actions (n, K).
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
-#: Scheme names accepted by :func:`evaluate_scheme` (``signalized`` is the signal baseline).
-SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", "signalized")
+#: Config overrides of every non-MiVeCC scheme (``signalized`` = ``fixed-time``, kept as the
+#: baseline's earlier name); ``docs/comparators.md`` describes them.
+COMPARATORS: dict[str, dict[str, str]] = {
+    "fixed-time": {"control": "signalized", "signal_controller": "fixed-time"},
+    "actuated": {"control": "signalized", "signal_controller": "actuated"},
+    "max-pressure": {"control": "signalized", "signal_controller": "max-pressure"},
+    "reservation": {"control": "reservation"},
+    "optimisation": {"control": "optimisation"},
+    "signalized": {"control": "signalized", "signal_controller": "fixed-time"},
+}
+
+#: Scheme names accepted by :func:`evaluate_scheme`: MiVeCC's and the comparators'.
+SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", *COMPARATORS)
 
 #: Keys every result of :func:`evaluate_scheme` has (besides the episode summary's).
 RESULT_KEYS: tuple[str, ...] = (
@@ -49,7 +61,8 @@ RESULT_KEYS: tuple[str, ...] = (
 
 #: Config fields reported with every result (the readings of ambiguous parts of the paper).
 CONFIG_READINGS: tuple[str, ...] = (
-    "control", "end_rule", "same_lane_rule", "edge_sv_gate", "sv_acc_source", "omega",
+    "control", "signal_controller", "end_rule", "same_lane_rule", "edge_sv_gate",
+    "sv_acc_source", "omega",
 )
 
 ZERO_ACTION_WARNING = (
@@ -78,10 +91,13 @@ def _check_args(
                           ("scheme", "scheme"), ("rows", "rows"), ("cols", "cols")):
         if name in overrides:
             raise ConfigError(f"{name}: give it as the {instead!r} argument, not as an override")
-    if scheme == "signalized" and overrides.get("control", "signalized") != "signalized":
-        raise ConfigError(
-            f"control: scheme 'signalized' needs control='signalized', got {overrides['control']!r}"
-        )
+    for name, value in COMPARATORS.get(scheme, {}).items():
+        if overrides.get(name, value) != value:
+            raise ConfigError(f"{name}: scheme {scheme!r} needs {name}={value!r}, "
+                              f"got {overrides[name]!r}")
+    if scheme in ("E", "EE", "EEC") and overrides.get("control", "unsignalized") != "unsignalized":
+        raise ConfigError(f"control: scheme {scheme!r} needs control='unsignalized', "
+                          f"got {overrides['control']!r}")
     if policies is not None:
         unknown = set(policies) - {"edge", "cloud"}
         if unknown:
@@ -106,7 +122,9 @@ def evaluate_scheme(
     """Run one episode of ``steps`` env steps and return its metrics and settings.
 
     Args:
-        scheme: ``"E"``, ``"EE"``, ``"EEC"`` or ``"signalized"``.
+        scheme: one of :data:`SCHEMES`: ``"E"``, ``"EE"``, ``"EEC"``, ``"fixed-time"``,
+            ``"actuated"``, ``"max-pressure"``, ``"reservation"``, ``"optimisation"``
+            (``"signalized"`` = ``"fixed-time"``). All run on the same seeded demand.
         rows: intersection rows of the grid.
         cols: intersection columns of the grid.
         density: arrival rate per entry lane [veh/lane/h].
@@ -131,8 +149,8 @@ def evaluate_scheme(
     _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
     overrides = dict(config_overrides)
-    if scheme == "signalized":
-        overrides.update(scheme="E", control="signalized")
+    if scheme in COMPARATORS:
+        overrides.update(scheme="E", **COMPARATORS[scheme])
     else:
         overrides["scheme"] = scheme
     env = mivecc_v0.parallel_env(

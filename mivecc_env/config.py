@@ -227,11 +227,11 @@ class MiVeCCConfig:
         lo_open=True,
     )
     optimisation_headway_s: float = _num(
-        1.0, 0.0, 60.0, "optimisation: minimum time between two vehicles of crossing lanes "
+        1.5, 0.0, 60.0, "optimisation: minimum time between two vehicles of crossing lanes "
         "at a conflict point (and between same-lane vehicles)"
     )
     optimisation_max_vehicles: int = _int(
-        12, 1, 64, "optimisation: vehicles per intersection in one MILP (nearest first)"
+        6, 1, 64, "optimisation: vehicles per intersection in one MILP (nearest first)"
     )
     signal_green_s: float = _num(30.0, 1.0, 600.0, "green time of each phase (signalized)")
     signal_yellow_s: float = _num(3.0, 0.0, 60.0, "yellow time of each phase (signalized)")

@@ -10,6 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import comparison
 import paper_table
 import rules_study
 
@@ -40,3 +41,23 @@ def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
 @pytest.mark.parametrize("new, old, expected", [(11.0, 10.0, 10.0), (9.0, 10.0, -10.0)])
 def test_improvement_rate(new: float, old: float, expected: float) -> None:
     assert paper_table.improvement(new, old) == pytest.approx(expected)
+
+
+def test_comparison_runs_reuses_and_tabulates(tmp_path: Path) -> None:
+    args = ["--grids", "1x1", "--densities", "1500", "--schemes", "fixed-time", "max-pressure",
+            "reservation", "--seeds", "0", "--steps", "300", "--out", str(tmp_path / "a")]
+    assert comparison.main(args) == 0
+    with open(tmp_path / "a" / "comparison.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted(r["scheme"] for r in rows) == ["fixed-time", "max-pressure", "reservation"]
+    assert all(float(r["arrived"]) == float(rows[0]["arrived"]) for r in rows)  # same demand
+    md = (tmp_path / "a" / "comparison.md").read_text()
+    assert "| 1500 |" in md and "max-pressure vs fixed-time" in md
+    assert (tmp_path / "a" / "comparison_1x1.png").stat().st_size > 1000
+    # a second call reuses every run of the first CSV
+    again = ["--from-csv", str(tmp_path / "a" / "comparison.csv"),
+             *[a if a != str(tmp_path / "a") else str(tmp_path / "b") for a in args]]
+    assert comparison.main(again) == 0
+    with open(tmp_path / "b" / "comparison.csv") as fh:
+        assert [r["avg_travel_velocity_mps"] for r in csv.DictReader(fh)] == [
+            r["avg_travel_velocity_mps"] for r in rows]
