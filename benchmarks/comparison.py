@@ -102,7 +102,7 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                 if not runs:
                     cells.append("")
                     continue
-                v, sd = _mean(runs, "avg_travel_velocity_mps")
+                v = _mean(runs, "avg_travel_velocity_mps")[0]
                 vel[s] = v
                 coll = int(sum(float(x["collisions"]) for x in runs))
                 cells.append(f"{v:.2f} ({coll})")
