@@ -26,13 +26,17 @@ key                    content
 =====================  ==============================================================
 
 Files are written atomically (temporary file in the same folder, then :func:`os.replace`), so
-an interrupted save never leaves a truncated checkpoint behind.
+an interrupted save never leaves a truncated checkpoint behind. The temporary file is named
+``.<name>.pid<PID>.<random>.tmp``; one left by a killed save (its process is gone) is deleted by
+the next :func:`save_checkpoint` or :func:`load_checkpoint` of that path.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +52,7 @@ __all__ = [
     "CheckpointError",
     "export_policy",
     "load_checkpoint",
+    "remove_stale_temp_files",
     "save_checkpoint",
 ]
 
@@ -59,6 +64,53 @@ _REQUIRED = ("format_version", "kind", "grid_size", "actor", "critic", "stage")
 
 class CheckpointError(Exception):
     """A file is not a usable mivecc checkpoint (missing, corrupt, wrong kind or version)."""
+
+
+#: Temporary files without a writer PID (older versions) are stale after this long [s].
+_LEGACY_TMP_AGE_S = 600.0
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):  # exists but belongs to someone else
+        return True
+    return True
+
+
+def remove_stale_temp_files(path: str | os.PathLike) -> list[Path]:
+    """Delete the temporary files that interrupted saves of ``path`` left in its folder.
+
+    A temporary file is stale when the process named in it (``.pid<PID>.``) no longer runs; one
+    of an older version (no PID) when it is older than 10 minutes. Files that cannot be deleted
+    (read-only folder) are left alone.
+
+    Returns:
+        The files deleted.
+    """
+    path = Path(path)
+    pattern = re.compile(re.escape(f".{path.name}.") + r"(?:pid(\d+)\.)?[^/]*\.tmp")
+    removed = []
+    try:
+        candidates = [p for p in path.parent.iterdir() if pattern.fullmatch(p.name)]
+    except OSError:
+        return removed
+    for tmp in candidates:
+        match = pattern.fullmatch(tmp.name)
+        try:
+            if match and match.group(1) is not None:
+                pid = int(match.group(1))
+                if pid == os.getpid() or _process_alive(pid):
+                    continue
+            elif time.time() - tmp.stat().st_mtime < _LEGACY_TMP_AGE_S:
+                continue
+            tmp.unlink()
+            removed.append(tmp)
+        except OSError:
+            continue
+    return removed
 
 
 def _plain(value: Any) -> Any:
@@ -99,7 +151,10 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
         env_version=ENV_VERSION,
     )
     data = _plain(data)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    remove_stale_temp_files(path)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.pid{os.getpid()}.", suffix=".tmp", dir=path.parent
+    )
     try:
         with os.fdopen(fd, "wb") as fh:
             torch.save(data, fh)
@@ -132,6 +187,7 @@ def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -
             match the network spec.
     """
     path = Path(path)
+    remove_stale_temp_files(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: no such checkpoint file")
     try:
@@ -160,7 +216,7 @@ def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -
     kind = data["kind"]
     if expected_kind is not None and kind != expected_kind:
         raise CheckpointError(
-            f"{path}: holds a {kind!r} policy, but a {expected_kind!r} policy is needed"
+            f"{path}: holds the {kind!r} policy, but the {expected_kind!r} policy is needed"
         )
     try:
         spec = get_network_spec(kind)

@@ -15,6 +15,9 @@ Examples::
     mivecc evaluate --scheme E --end-rule literal --same-lane-rule --set omega=0.3
 
 A bad configuration value exits with status 2 and the message on stderr (no traceback).
+Standard output holds only the result (the table, the JSON, or ``train``'s checkpoint path);
+logs, warnings and progress bars go to stderr. Metrics that have no data yet (e.g. travel
+velocity before any vehicle has exited) are ``null`` in the JSON.
 """
 
 from __future__ import annotations
@@ -30,9 +33,17 @@ from typing import Any
 
 from mivecc_agents.evaluation import SCHEMES, aggregate, evaluate_scheme
 from mivecc_env import __version__
-from mivecc_env.config import ALIASES, ConfigError, describe_fields
+from mivecc_env.config import ALIASES, ConfigError, MiVeCCConfig, describe_fields
+from mivecc_env.config import from_overrides as _config_from
 
 PROG = "mivecc"
+
+#: Default arrival density [veh/lane/h] of every command: the config field's default.
+DEFAULT_DENSITY: float = MiVeCCConfig.__dataclass_fields__["density_vplh"].default
+
+#: Default torch intra-op threads of ``evaluate``: inference of the small coordinator networks
+#: is fastest on one thread (measured 7-10x faster than torch's default on a shared 2-core box).
+DEFAULT_EVAL_THREADS = 1
 
 #: Config fields that have their own option; ``--set`` may not give them too.
 _DEDICATED = {
@@ -85,8 +96,8 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("configuration")
     g.add_argument("--rows", type=int, default=3, help="intersection rows (default 3)")
     g.add_argument("--cols", type=int, default=3, help="intersection columns (default 3)")
-    g.add_argument("--density", type=float, default=2100.0,
-                   help="arrivals per entry lane [veh/lane/h] (default 2100)")
+    g.add_argument("--density", type=float, default=DEFAULT_DENSITY,
+                   help=f"arrivals per entry lane [veh/lane/h] (default {DEFAULT_DENSITY:g})")
     g.add_argument("--end-rule", choices=("sensible", "literal"), default=None,
                    help="end-node rule reading (default: the config's, 'sensible')")
     g.add_argument("--same-lane-rule", action="store_true", default=None,
@@ -140,11 +151,16 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="cloud policy checkpoint (default: the shipped pretrained one)")
     p.add_argument("--no-pretrained", action="store_true",
                    help="ignore the shipped checkpoints: EE/EEC act with zero coordinator actions")
+    p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
+                   help="torch threads for the policies' inference (default "
+                   f"{DEFAULT_EVAL_THREADS}: fastest for these small networks)")
     p.set_defaults(func=cmd_evaluate)
     return p
 
 
 def _fmt(value: Any) -> str:
+    if isinstance(value, float) and math.isnan(value):
+        return "no data"
     if isinstance(value, float):
         if math.isfinite(value) and value == int(value) and abs(value) < 1e12:
             return str(int(value))
@@ -175,26 +191,92 @@ def format_table(results: list[dict[str, Any]], mean: dict[str, Any] | None = No
     return "\n".join(lines)
 
 
-def evaluation_policies(args: argparse.Namespace) -> dict[str, Any]:
-    """Coordinator policies for ``evaluate``: given checkpoints, else the shipped ones."""
-    from mivecc_agents.checkpoints import CheckpointError
-    from mivecc_agents.policies import load_policy, pretrained_policies
+def evaluation_policies(
+    args: argparse.Namespace, config: MiVeCCConfig | None = None
+) -> dict[str, Any]:
+    """Coordinator policies for ``evaluate``: given checkpoints, else the shipped ones.
 
-    policies = {} if args.no_pretrained else pretrained_policies()
-    for kind, path in (("edge", args.edge_checkpoint), ("cloud", args.cloud_checkpoint)):
-        if path is not None:
-            try:
-                policies[kind] = load_policy(path, expected_kind=kind)
-            except CheckpointError as exc:  # a user error: exit 2 with the message
-                raise ConfigError(f"--{kind}-checkpoint: {exc}") from exc
+    With ``config`` (the evaluation's), each policy's training config is compared with it: a
+    K that does not fit is an error, other differences are warned about on stderr.
+    """
+    from mivecc_agents.checkpoints import CheckpointError
+    from mivecc_agents.policies import check_policy_config, load_policy, pretrained_path
+
+    paths = {kind: None if args.no_pretrained else pretrained_path(kind)
+             for kind in ("edge", "cloud")}
+    given = {"edge": args.edge_checkpoint, "cloud": args.cloud_checkpoint}
+    policies = {}
+    for kind in ("edge", "cloud"):
+        path, option = given[kind], f"--{kind}-checkpoint"
+        if path is None:
+            path, option = paths[kind], f"shipped {kind} policy"
+        if path is None:
+            continue
+        try:
+            policies[kind] = load_policy(path, expected_kind=kind)
+            if config is not None:
+                for message in check_policy_config(policies[kind], config):
+                    print(f"{PROG}: warning: {option}: {message}", file=sys.stderr)
+        except CheckpointError as exc:  # a user error: exit 2 with the message
+            raise ConfigError(f"{option}: {exc}") from exc
     return policies
+
+
+def _check_threads(option: str, threads: Any) -> int:
+    if threads is None or threads < 1:
+        raise ConfigError(f"{option}: must be an integer >= 1, got {threads!r}")
+    return int(threads)
+
+
+def set_inference_threads(threads: int) -> None:
+    """Limit torch to ``threads`` intra-op threads (and OpenMP, if torch is not loaded yet)."""
+    if "torch" not in sys.modules:
+        os.environ["OMP_NUM_THREADS"] = str(threads)
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def json_document(document: Any) -> str:
+    """``document`` as JSON, with NaN / inf ("no data", e.g. no vehicle has exited) as null."""
+    def clean(value: Any) -> Any:
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, list | tuple):
+            return [clean(v) for v in value]
+        return value
+
+    return json.dumps(clean(document), indent=2, allow_nan=False)
+
+
+def _write_out(option: str, path: Path, text: str) -> None:
+    """Write ``text`` to ``path``; an unwritable path is a user error (exit 2)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{option}: cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def _evaluation_config(args: argparse.Namespace, overrides: dict[str, Any]) -> MiVeCCConfig:
+    scheme = {"scheme": "E", "control": "signalized"} if args.scheme == "signalized" else {
+        "scheme": args.scheme}
+    return _config_from(None, **{**overrides, **scheme, "rows": args.rows, "cols": args.cols,
+                                 "density_vplh": args.density})
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Run ``evaluate``: one episode per seed, print and optionally save the metrics."""
     overrides = config_overrides_from_args(args)
     seeds = args.seeds if args.seeds else [args.seed]
-    policies = evaluation_policies(args) if args.scheme in ("EE", "EEC") else {}
+    threads = _check_threads("--threads", args.threads)
+    policies = {}
+    if args.scheme in ("EE", "EEC"):
+        config = _evaluation_config(args, overrides)
+        set_inference_threads(threads)
+        policies = evaluation_policies(args, config)
     results = [
         evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps, seed,
                         policies=policies, progress=not args.no_progress, warn=i == 0,
@@ -210,10 +292,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     else:
         stats = aggregate(results)
         document = {"runs": results, **stats}
-    text = json.dumps(document, indent=2, allow_nan=True)
+    text = json_document(document)
     if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n", encoding="utf-8")
+        _write_out("--out", args.out, text + "\n")
     if args.json:
         print(text)
     else:
@@ -257,13 +338,41 @@ def add_train_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Run ``mivecc train`` (imports torch only now)."""
+    from mivecc_agents.train_checks import (
+        check_network_sizes,
+        check_train_args,
+        quiet_train_output,
+    )
+
+    check_train_args(args)
     # OpenMP reads its thread count when torch is first imported; torch.set_num_threads later
     # does not reach every thread, and oversubscribed cores slowed training ~10x (measured).
     if getattr(args, "threads", None):
         os.environ.setdefault("OMP_NUM_THREADS", str(args.threads))
+    quiet_train_output()
+    check_network_sizes(args)
+    check_train_checkpoints(args)
     from mivecc_agents.training import train_from_args
 
     return train_from_args(args)
+
+
+def check_train_checkpoints(args: argparse.Namespace) -> None:
+    """Load ``--edge-checkpoint`` (stage II) and ``--resume`` as policies before training, so a
+    wrong file, kind or weight shape is one line and exit 2 (not a traceback mid-setup)."""
+    from mivecc_agents.checkpoints import CheckpointError
+    from mivecc_agents.policies import load_policy
+
+    checks = [("--resume", args.resume, args.stage)]
+    if args.stage == "cloud":
+        checks.append(("--edge-checkpoint", args.edge_checkpoint, "edge"))
+    for option, path, kind in checks:
+        if path is None:
+            continue
+        try:
+            load_policy(path, expected_kind=kind)
+        except CheckpointError as exc:
+            raise ConfigError(f"{option}: {exc}") from exc
 
 
 COMMANDS.append(add_train_parser)

@@ -3,12 +3,19 @@
 ``load_policy(path)`` returns ``fn(obs (n_agents, K, K, 3), mask (n_agents, K)) -> actions
 (n_agents, K)`` [m/s^2], the signature ``evaluate_scheme(..., policies={"edge": fn, "cloud": fn})``
 expects. :func:`pretrained_path` finds the checkpoints shipped in ``mivecc_agents/pretrained/``.
+:func:`check_policy_config` compares a policy's training config with the config it is used in.
+
+Inference speed: these networks are small, and torch's default of one thread per core is
+several times slower than one thread on a busy machine; ``mivecc evaluate`` sets
+``torch.set_num_threads(1)`` (option ``--threads``). Do the same in scripts that call policies
+in a loop.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -16,7 +23,14 @@ import torch
 from mivecc_agents.checkpoints import CheckpointError, load_checkpoint
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor_net
 
-__all__ = ["PRETRAINED_DIR", "Policy", "load_policy", "pretrained_path", "pretrained_policies"]
+__all__ = [
+    "PRETRAINED_DIR",
+    "Policy",
+    "check_policy_config",
+    "load_policy",
+    "pretrained_path",
+    "pretrained_policies",
+]
 
 PRETRAINED_DIR = Path(__file__).resolve().parent / "pretrained"
 """Package data folder of the shipped checkpoints (``edge.pt``, ``cloud.pt``)."""
@@ -34,19 +48,29 @@ def load_policy(path: str | Path, expected_kind: str | None = None) -> Policy:
     Returns:
         ``fn(obs, mask) -> actions``; ``obs`` is ``(n, K, K, 3)`` (or ``(K, K, 3)``), ``mask``
         ``(n, K)`` (or ``(K,)``); actions are float32 in [-3, 3], 0 in padded columns. The
-        function carries ``.kind``, ``.grid_size`` and ``.checkpoint`` attributes.
+        function carries ``.kind``, ``.grid_size``, ``.checkpoint`` and ``.config`` (the
+        training environment's config as a dict, empty if the checkpoint has none) attributes.
 
     Raises:
         CheckpointError: If the file is not a usable checkpoint, or the state dict does not fit.
+
+    Torch's global random generator is left as it was (the network is built inside
+    ``torch.random.fork_rng`` before its weights are overwritten).
     """
     ckpt = load_checkpoint(path, expected_kind=expected_kind)
     kind = ckpt["kind"]
-    net = make_actor_net(kind)
+    with torch.random.fork_rng(devices=[]):  # the random initial weights are overwritten
+        net = make_actor_net(kind)
+    k_net = net.spec.grid_size
     try:
         net.load_state_dict(ckpt["actor"])
     except (RuntimeError, KeyError, TypeError) as exc:
+        lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+        detail = next((line for line in lines[1:] if "mismatch" in line or "key" in line),
+                      lines[0] if lines else type(exc).__name__)
+        more = f" (+{len(lines) - 2} more)" if len(lines) > 2 else ""
         raise CheckpointError(
-            f"{path}: actor weights do not fit the {kind} network: {exc}"
+            f"{path}: actor weights do not fit the {kind} network (K={k_net}): {detail}{more}"
         ) from exc
     net.eval()
     for prm in net.parameters():
@@ -68,7 +92,62 @@ def load_policy(path: str | Path, expected_kind: str | None = None) -> Policy:
     policy.kind = kind  # type: ignore[attr-defined]
     policy.grid_size = k  # type: ignore[attr-defined]
     policy.checkpoint = str(path)  # type: ignore[attr-defined]
+    policy.config = dict(ckpt.get("config") or {})  # type: ignore[attr-defined]
     return policy
+
+
+#: Config fields that change what an observation or an action means: a policy trained with
+#: other values sees states it was not trained on (warned about by :func:`check_policy_config`).
+DYNAMICS_FIELDS: tuple[str, ...] = (
+    "control", "dt_s", "v_min_mps", "v_max_mps", "a_max_mps2", "segment_length_m",
+    "lane_offset_m", "vehicle_length_m", "control_radius_m", "projection_window_m",
+)
+
+#: Schemes that use each coordinator's actions.
+USED_BY: dict[str, tuple[str, ...]] = {"edge": ("EE", "EEC"), "cloud": ("EEC",)}
+
+
+def check_policy_config(policy: Any, config: Any) -> list[str]:
+    """Compare a loaded policy's training config with the config it is used in.
+
+    Args:
+        policy: A policy from :func:`load_policy` (``.kind``, ``.grid_size``, ``.config``).
+        config: The :class:`~mivecc_env.config.MiVeCCConfig` of the environment.
+
+    Returns:
+        Warnings (empty when all fits): the scheme does not use this coordinator; a cloud
+        policy on another grid than it was trained on (the cloud sees the whole grid; an edge
+        policy sees one intersection, so it is trained on 1x1 and used on any grid); and any
+        of :data:`DYNAMICS_FIELDS` that differ.
+
+    Raises:
+        CheckpointError: The environment's state-graph size K differs from the policy's.
+    """
+    kind = policy.kind
+    k_env = getattr(config, f"k_{kind}")
+    where = getattr(policy, "checkpoint", "policy")
+    if k_env != policy.grid_size:
+        raise CheckpointError(
+            f"{where}: the {kind} policy reads K={policy.grid_size} state graphs, the "
+            f"environment has k_{kind}={k_env}"
+        )
+    trained = getattr(policy, "config", None) or {}
+    out = []
+    if config.scheme not in USED_BY[kind] and config.control != "signalized":
+        out.append(f"scheme {config.scheme} does not use {kind} actions: the policy is ignored")
+    if kind == "cloud" and trained and (trained.get("rows"), trained.get("cols")) != (
+        config.rows, config.cols
+    ):
+        out.append(
+            f"the cloud policy was trained on a {trained.get('rows')}x{trained.get('cols')} "
+            f"grid, the environment is {config.rows}x{config.cols}"
+        )
+    diff = [f"{name}={trained[name]!r} (here {getattr(config, name)!r})"
+            for name in DYNAMICS_FIELDS if name in trained and trained[name] != getattr(
+                config, name)]
+    if diff:
+        out.append(f"trained with other dynamics: {', '.join(diff)}")
+    return out
 
 
 def pretrained_path(kind: str) -> Path | None:

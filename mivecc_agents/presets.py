@@ -13,6 +13,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from mivecc_env.config import MiVeCCConfig
+
 __all__ = ["DEFAULT_PRESET", "PRESETS", "TrainPreset", "add_train_arguments", "get_preset"]
 
 
@@ -100,8 +102,9 @@ def add_train_arguments(parser: Any) -> None:
                         help="steps per episode (default: the preset's, 3000 = 300 s)")
     parser.add_argument("--rows", type=int, default=None, help="grid rows (edge 1, cloud 3)")
     parser.add_argument("--cols", type=int, default=None, help="grid cols (edge 1, cloud 3)")
-    parser.add_argument("--density", type=float, nargs="+", default=[1500.0],
-                        help="training densities [veh/lane/h], one env each (default 1500)")
+    density = MiVeCCConfig.__dataclass_fields__["density_vplh"].default
+    parser.add_argument("--density", type=float, nargs="+", default=[density],
+                        help=f"training densities [veh/lane/h], one env each (default {density:g})")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="runs/train", help="output folder (default runs/train)")
     parser.add_argument("--resume", default=None, help="checkpoint of this stage to continue")

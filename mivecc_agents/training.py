@@ -327,7 +327,7 @@ def _train(
     frames: int | None = None,
     rows: int = 1,
     cols: int = 1,
-    densities: float | Sequence[float] = 1500.0,
+    densities: float | Sequence[float] = 900.0,
     seed: int = 0,
     out_dir: str | Path = "runs/train",
     resume: str | Path | None = None,

@@ -72,7 +72,8 @@ def test_edge_stage_trains_on_local_ray(ray_mod, tmp_path):
     assert ck["stage"] == "edge" and ck["frames"] == 200 and ck["updates"] > 0
     assert any(not torch.equal(v, ck["actor"][k]) for k, v in init_actor.items())
     assert math.isfinite(ck["metrics"]["critic_loss"])
-    assert math.isfinite(ck["metrics"]["avg_velocity_mps"])
+    # 120-step (12 s) episodes on 1x1: no vehicle can exit (shortest trip ~23 s): no data
+    assert math.isnan(ck["metrics"]["avg_velocity_mps"])
     rows = (tmp_path / "train_log.csv").read_text().splitlines()
     assert len(rows) == 1 + 4  # header + 4 iterations of 50 frames
     assert (tmp_path / "learning_curve.png").is_file()

@@ -1,0 +1,174 @@
+"""``mivecc train`` / ``evaluate`` on bad input: one line naming the option, exit 2, no
+traceback; stdout holds only the result; evaluate's inference threads."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from mivecc_agents.cli import DEFAULT_DENSITY, build_parser, main
+from mivecc_env.config import MiVeCCConfig
+
+
+def _train_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
+    code = main(["train", "--no-progress", *argv])
+    out, err = capsys.readouterr()
+    assert code == 2, (out, err)
+    assert out == ""
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    return err.strip()
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--frames", "0"], "--frames: must be an integer >= 100"),
+        (["--frames", "-5"], "--frames: must be an integer >= 100"),
+        (["--frames", "150", "--density", "900", "1500"], "--frames: must be an integer >= 200"),
+        (["--rows", "0", "--cols", "0"], "--rows: must be an integer in [1, 16], got 0"),
+        (["--cols", "0"], "--cols: must be an integer in [1, 16], got 0"),
+        (["--buffer-size", "0"], "--buffer-size: must be an integer >= 48"),
+        (["--workers", "0"], "--workers: must be an integer >= 1, got 0"),
+        (["--threads", "0"], "--threads: must be an integer >= 1, got 0"),
+        (["--episode-steps", "0"], "--episode-steps: must be an integer >= 1"),
+        (["--density", "0"], "--density: must be a number in [1.0, 3600.0], got 0.0"),
+        (["--density", "nan"], "--density: must be finite"),
+        (["--set", "omega=2"], "omega: must be a number in [0.0, 1.0]"),
+        (["--set", "k_edge=10"], "k_edge: the edge network reads K=15 state graphs, got 10"),
+    ],
+)
+def test_train_bad_option_is_one_line_exit_2(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path, argv: list[str], expected: str
+) -> None:
+    err = _train_error(capsys, "--out", str(tmp_path / "run"), *argv)
+    assert expected in err
+
+
+def test_train_unwritable_out(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    err = _train_error(capsys, "--frames", "100", "--out", str(blocker / "run"))
+    assert "--out: cannot write to folder" in err
+
+
+def test_train_bad_checkpoints(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    from mivecc_agents.checkpoints import save_checkpoint
+    from mivecc_agents.networks import make_actor_net, make_critic_net
+
+    def ckpt(name: str, kind: str, actor_kind: str) -> str:
+        return str(save_checkpoint(tmp_path / name, {
+            "stage": kind, "kind": kind, "grid_size": 15 if kind == "edge" else 60,
+            "actor": make_actor_net(actor_kind).state_dict(),
+            "critic": make_critic_net(kind).state_dict(), "frames": 0, "updates": 0,
+            "metrics": {}, "config": {}, "preset": {},
+        }))
+
+    out = str(tmp_path / "run")
+    wrong_shape = ckpt("wrong.pt", "edge", "cloud")  # a K=60 actor in an edge checkpoint
+    err = _train_error(capsys, "--stage", "cloud", "--edge-checkpoint", wrong_shape, "--out", out)
+    assert "--edge-checkpoint:" in err and "do not fit the edge network (K=15)" in err
+    cloud = ckpt("cloud.pt", "cloud", "cloud")
+    err = _train_error(capsys, "--stage", "cloud", "--edge-checkpoint", cloud, "--out", out)
+    assert "--edge-checkpoint:" in err and "'edge' policy is needed" in err
+    err = _train_error(capsys, "--stage", "edge", "--resume", cloud, "--out", out)
+    assert "--resume:" in err
+    err = _train_error(capsys, "--stage", "cloud", "--edge-checkpoint", str(tmp_path / "no.pt"),
+                       "--out", out)
+    assert "no such checkpoint file" in err
+
+
+def test_one_density_default_everywhere() -> None:
+    parser = build_parser()
+    default = MiVeCCConfig().density_vplh
+    assert default == DEFAULT_DENSITY
+    assert parser.parse_args(["evaluate"]).density == default
+    assert parser.parse_args(["train"]).density == [default]
+
+    import inspect
+
+    from mivecc_agents.training import train
+
+    assert inspect.signature(train).parameters["densities"].default == default
+
+
+def test_evaluate_sets_inference_threads(capsys: pytest.CaptureFixture[str]) -> None:
+    torch = pytest.importorskip("torch")
+    before = torch.get_num_threads()
+    base = ["evaluate", "--scheme", "EE", "--rows", "1", "--cols", "1", "--steps", "3",
+            "--no-progress", "--json"]
+    try:
+        torch.set_num_threads(2)
+        assert main(base) == 0
+        assert torch.get_num_threads() == 1  # the default: fastest for these small networks
+        assert main([*base, "--threads", "2"]) == 0
+        assert torch.get_num_threads() == 2
+        capsys.readouterr()
+        assert main([*base, "--threads", "0"]) == 2
+        assert "--threads: must be an integer >= 1" in capsys.readouterr().err
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_evaluate_unwritable_out(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    code = main(["evaluate", "--rows", "1", "--cols", "1", "--steps", "2", "--no-progress",
+                 "--out", str(blocker / "r.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--out: cannot write" in err and "Traceback" not in err
+
+
+def test_evaluate_warns_on_checkpoint_config_mismatch(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from mivecc_agents.policies import pretrained_path
+
+    if pretrained_path("cloud") is None:
+        pytest.skip("no shipped cloud policy")
+    code = main(["evaluate", "--scheme", "EEC", "--rows", "1", "--cols", "1", "--steps", "2",
+                 "--no-progress", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0
+    json.loads(out)
+    assert "warning: shipped cloud policy: the cloud policy was trained on a 3x3 grid" in err
+    code = main(["evaluate", "--scheme", "EEC", "--rows", "1", "--cols", "1", "--steps", "2",
+                 "--no-progress", "--set", "k_cloud=30"])
+    err = capsys.readouterr().err
+    assert code == 2 and "reads K=60 state graphs" in err
+
+
+def test_evaluate_json_has_null_for_no_data(capsys: pytest.CaptureFixture[str]) -> None:
+    """Two steps: no vehicle has exited, so travel velocity and trip time have no data."""
+    code = main(["evaluate", "--rows", "1", "--cols", "1", "--steps", "2", "--no-progress",
+                 "--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "NaN" not in out
+    result = json.loads(out)
+    for key in ("avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps",
+                "mean_trip_time_s", "mean_wait_time_s", "throughput_vph"):
+        assert result[key] is None, key
+    assert result["throughput"] == 0
+
+
+@pytest.mark.slow
+def test_train_stdout_is_only_the_checkpoint_path(tmp_path: Path) -> None:
+    """A real (tiny) training run: stdout is the checkpoint path, TorchRL's log on stderr, no
+    PettingZoo version warning."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    env.pop("TORCHRL_CONSOLE_STREAM", None)
+    proc = subprocess.run(
+        [sys.executable, "-m", "mivecc_agents.cli", "train", "--frames", "100",
+         "--episode-steps", "50", "--rows", "1", "--cols", "1", "--threads", "1",
+         "--out", str(tmp_path / "run"), "--no-progress"],
+        capture_output=True, text=True, env=env, check=False, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines() == [str(tmp_path / "run" / "edge.pt")]
+    assert "PettingZoo in TorchRL is tested" not in proc.stderr
+    assert (tmp_path / "run" / "edge.pt").is_file()
