@@ -32,6 +32,7 @@ import numpy as np
 
 from mivecc_env import mivecc_v0
 from mivecc_env.config import ConfigError
+from mivecc_env.no_data import mark_no_data
 from mivecc_env.parallel_env import CLOUD_AGENT
 
 #: A coordinator policy: (obs_batch (n, K, K, 3), mask (n, K)) -> actions (n, K).
@@ -207,7 +208,7 @@ def evaluate_scheme(
         bar.update(int(steps) - bar.n)
         bar.close()
 
-    result: dict[str, Any] = dict(env.summary())
+    result: dict[str, Any] = mark_no_data(env.summary(), cfg)  # NaN: nothing measured yet
     result.update(
         steps=int(steps),
         steps_per_s=float(steps / wall) if wall > 0 else math.inf,

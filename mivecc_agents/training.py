@@ -668,6 +668,7 @@ def _metrics(
     reward = nxt[group, "reward"]
     done = nxt["done"].reshape(-1)
     vel = nxt[group, "info", "avg_travel_velocity_mps"]  # (..., n_agents)
+    vel = torch.where(nxt[group, "info", "throughput"] > 0, vel, math.nan)  # NaN: none exited
     coll = nxt[group, "info", "collisions"]
     row: dict[str, float] = {
         "iteration": state["iteration"],

@@ -25,13 +25,13 @@ def _run_json(capsys: pytest.CaptureFixture[str], *extra: str) -> tuple[dict, st
 
 def test_evaluate_json_has_required_keys(capsys: pytest.CaptureFixture[str]) -> None:
     code = main(["evaluate", "--scheme", "E", "--rows", "1", "--cols", "1", "--density", "900",
-                 "--steps", "200", "--seed", "0", "--json"])
+                 "--steps", "300", "--seed", "0", "--json"])
     out, _ = capsys.readouterr()
     assert code == 0
     result = json.loads(out)
     missing = set(RESULT_KEYS) - set(result)
     assert not missing, missing
-    assert result["scheme"] == "E" and result["steps"] == 200
+    assert result["scheme"] == "E" and result["steps"] == 300
     assert (result["rows"], result["cols"], result["density"], result["seed"]) == (1, 1, 900, 0)
     assert result["end_rule"] == "sensible" and result["same_lane_rule"] is False
     assert result["steps_per_s"] > 0
@@ -109,7 +109,7 @@ def test_several_seeds_give_runs_and_mean(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
     out_file = tmp_path / "res.json"
-    code = main([*BASE, "--steps", "100", "--seeds", "0", "1", "--json", "--out", str(out_file)])
+    code = main([*BASE, "--steps", "300", "--seeds", "0", "1", "--json", "--out", str(out_file)])
     out, _ = capsys.readouterr()
     assert code == 0
     doc = json.loads(out)
