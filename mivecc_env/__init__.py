@@ -2,6 +2,9 @@
 
 * :mod:`mivecc_env.sim` -- the batched numpy simulator (no RL imports);
 * :mod:`mivecc_env.mivecc_v0` -- ``parallel_env()`` / ``env()`` (PettingZoo);
+* :mod:`mivecc_env.mivecc_edges_v0` -- the edge-only view (homogeneous agents, no ``cloud_0``);
+* ``pettingzoo.make("parallel" | "aec", "mivecc/mivecc-v0")`` (and ``mivecc/mivecc_edges-v0``)
+  where the installed PettingZoo has a registry (1.27+; registered on import of this package);
 * ``gymnasium.make("mivecc/MiVeCCEdge-v0")`` -- a single-agent view: the edge node of one
   intersection (registered on import of this package).
 """
@@ -9,6 +12,7 @@
 from __future__ import annotations
 
 from mivecc_env.config import ConfigError, MiVeCCConfig
+from mivecc_env.edge_view import MiVeCCEdgesParallelEnv
 from mivecc_env.metrics import episode_summary, upper_bound_velocity_mps
 from mivecc_env.parallel_env import CLOUD_AGENT, MiVeCCParallelEnv, edge_agent
 
@@ -20,11 +24,13 @@ __all__ = [
     "ENV_VERSION",
     "ConfigError",
     "MiVeCCConfig",
+    "MiVeCCEdgesParallelEnv",
     "MiVeCCParallelEnv",
     "__version__",
     "edge_agent",
     "episode_summary",
     "register_gymnasium",
+    "register_pettingzoo",
     "upper_bound_velocity_mps",
 ]
 
@@ -41,4 +47,30 @@ def register_gymnasium() -> None:
         )
 
 
+def register_pettingzoo() -> bool:
+    """Register ``mivecc/mivecc-v0`` and ``mivecc/mivecc_edges-v0`` with PettingZoo's registry.
+
+    Idempotent. PettingZoo releases before 1.27 have no registry: nothing is registered there and
+    this returns ``False`` (the module-level ``parallel_env()`` / ``env()`` work everywhere).
+    """
+    import pettingzoo
+
+    if not hasattr(pettingzoo, "register"):
+        return False
+    for env_id, module in PETTINGZOO_IDS.items():
+        for kind, registry, attr in (
+            ("parallel", pettingzoo.parallel_registry, "parallel_env"),
+            ("aec", pettingzoo.aec_registry, "env"),
+        ):
+            if env_id not in registry:
+                pettingzoo.register(kind, env_id, entry_point=f"{module}:{attr}")
+    return True
+
+
+PETTINGZOO_IDS = {
+    "mivecc/mivecc-v0": "mivecc_env.mivecc_v0",
+    "mivecc/mivecc_edges-v0": "mivecc_env.mivecc_edges_v0",
+}
+
 register_gymnasium()
+register_pettingzoo()
