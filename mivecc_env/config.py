@@ -357,8 +357,9 @@ def _check_field(f: dataclasses.Field, value: Any) -> None:
 
 FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MiVeCCConfig))
 
-#: Short keyword aliases accepted by :func:`from_overrides` (``density`` is in veh/lane/h).
-ALIASES: dict[str, str] = {"density": "density_vplh"}
+#: Short keyword aliases accepted by :func:`from_overrides` (``density`` is in veh/lane/h;
+#: ``max_cycles`` is PettingZoo's keyword for the episode length).
+ALIASES: dict[str, str] = {"density": "density_vplh", "max_cycles": "max_steps"}
 
 
 def from_overrides(base: MiVeCCConfig | None = None, **overrides: Any) -> MiVeCCConfig:

@@ -85,7 +85,7 @@ class MiVeCCEdgesParallelEnv(ParallelEnv):
         same traffic; later unseeded resets continue each copy's own sequence.
         """
         if seed is None and not self._started:
-            seed = int(np.random.SeedSequence().generate_state(1, np.uint64)[0] >> 1)
+            seed = int(np.random.SeedSequence().generate_state(1, np.uint64)[0]) >> 1
         self._started = True
         obs, infos = self._env.reset(seed=seed, options=options)
         self.agents = list(self.possible_agents)

@@ -11,11 +11,12 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
-from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
+from pettingzoo.test import api_test, parallel_api_test
 
 import mivecc_env
 from mivecc_env import CLOUD_AGENT, MiVeCCParallelEnv, mivecc_v0
 from mivecc_env.metrics import SUMMARY_KEYS
+from tests.env._pettingzoo_compat import run_parallel_seed_test
 
 GYM_ID = "mivecc/MiVeCCEdge-v0"
 TERMS = ("reward_sv", "reward_velocity", "reward_collision")
@@ -86,7 +87,7 @@ def test_parallel_api_test_3x3() -> None:
 
 
 def test_parallel_seed_test() -> None:
-    parallel_seed_test(functools.partial(small_env, max_steps=40), num_cycles=50)
+    run_parallel_seed_test(functools.partial(small_env, max_steps=40), num_cycles=50)
 
 
 def test_aec_api_test() -> None:

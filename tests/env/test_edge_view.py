@@ -7,11 +7,12 @@ import pickle
 import numpy as np
 import pettingzoo
 import pytest
-from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
+from pettingzoo.test import api_test, parallel_api_test
 
 import mivecc_env
 from mivecc_env import CLOUD_AGENT, mivecc_edges_v0, mivecc_v0
 from mivecc_env.config import ConfigError
+from tests.env._pettingzoo_compat import run_parallel_seed_test
 
 KW = {"rows": 1, "cols": 2, "density": 1800, "max_steps": 40}
 
@@ -29,7 +30,7 @@ def test_agents_are_homogeneous_edges() -> None:
 
 def test_pettingzoo_api_and_seed_tests() -> None:
     parallel_api_test(mivecc_edges_v0.parallel_env(**KW), num_cycles=60)
-    parallel_seed_test(lambda: mivecc_edges_v0.parallel_env(**KW), num_cycles=30)
+    run_parallel_seed_test(lambda: mivecc_edges_v0.parallel_env(**KW), num_cycles=30)
     api_test(mivecc_edges_v0.env(**KW), num_cycles=30)
 
 
