@@ -9,7 +9,10 @@ the checkpoints given with ``--edge`` / ``--cloud``), then writes
   upper bound, collisions, and the improvement rates EE vs E, EEC vs E, EEC vs EE and EEC vs the
   signalized baseline next to the paper's Table (3x3),
 * ``velocity_vs_density_<grid>.png`` - average travel velocity vs density per scheme with the
-  upper bound.
+  upper bound,
+* in ``paper_table.md`` also, per grid: the released-style velocity (entry to 5 m past the last
+  intersection centre, no entry wait; its improvement rates) and the near-miss measures of
+  every scheme (``mivecc_env.sim.near_miss``).
 
 Usage (the full table; about 170 episodes):
     python benchmarks/paper_table.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2
@@ -121,6 +124,56 @@ def summarise(rows: list[dict[str, Any]], grid: str) -> tuple[str, dict]:
     return "\n".join(lines), mean
 
 
+#: Near-miss keys of the second table: (column, key, how runs of a cell are combined).
+NEAR_MISS_COLUMNS = (
+    ("min TTC [s]", "min_ttc_s", "min"), ("TTC 1st pct [s]", "ttc_p1_s", "mean"),
+    ("min PET [s]", "min_pet_s", "min"), ("PET < 1 s", "pet_under_1s", "sum"),
+    ("min distance [m]", "min_distance_m", "min"),
+)
+
+
+def near_miss_table(rows: list[dict[str, Any]], grid: str) -> str:
+    """Markdown: released-style velocity, its improvement rates and the near-miss measures.
+
+    Empty when the runs predate these keys (e.g. an old ``--from-csv`` file).
+    """
+    r, c = (int(x) for x in grid.split("x"))
+    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
+    if not mine or any(x.get("released_velocity_mps", "") == "" for x in mine):
+        return ""
+    densities = sorted({x["density"] for x in mine})
+    schemes = [s for s in SCHEMES if any(x["scheme"] == s for x in mine)]
+    combine = {"min": np.min, "mean": np.mean, "sum": np.sum}
+    cell: dict[tuple[str, float], dict[str, float]] = {}
+    for s, d in itertools.product(schemes, densities):
+        runs = [x for x in mine if x["scheme"] == s and x["density"] == d]
+        if runs:
+            cell[(s, d)] = {"rv": float(np.mean([float(x["released_velocity_mps"])
+                                                 for x in runs]))}
+            for _, key, how in NEAR_MISS_COLUMNS:
+                cell[(s, d)][key] = float(combine[how]([float(x[key]) for x in runs]))
+    pairs = [(a, b) for a, b in COMPARISONS if a in schemes and b in schemes]
+    head = ("| veh/lane/h | " + " | ".join(f"{s} released-style v [m/s]" for s in schemes)
+            + "".join(f" | {a} vs {b} [%]" for a, b in pairs) + " |")
+    lines = [f"### {grid}: released-style velocity (entry to 5 m past the last centre)", "",
+             head, "|" + "---|" * (head.count("|") - 1)]
+    for d in densities:
+        cells = [f"{d:.0f}"] + [f"{cell[(s, d)]['rv']:.3f}" for s in schemes]
+        cells += [f"{improvement(cell[(a, d)]['rv'], cell[(b, d)]['rv']):+.2f}" for a, b in pairs]
+        lines.append("| " + " | ".join(cells) + " |")
+    head = "| scheme | veh/lane/h | " + " | ".join(n for n, _, _ in NEAR_MISS_COLUMNS) + " |"
+    lines += ["", f"### {grid}: near-miss measures", "", head,
+              "|" + "---|" * (head.count("|") - 1)]
+    for s, d in itertools.product(schemes, densities):
+        if (s, d) in cell:
+            values = [f"{cell[(s, d)][key]:.3f}" if how != "sum" else f"{cell[(s, d)][key]:.0f}"
+                      for _, key, how in NEAR_MISS_COLUMNS]
+            lines.append(f"| {s} | {d:.0f} | " + " | ".join(values) + " |")
+    lines += ["", "Over the seeds: the smallest minima, the mean 1st-percentile TTC, the summed "
+              "count of PET samples below 1 s; definitions in `mivecc_env/sim/near_miss.py`."]
+    return "\n".join(lines)
+
+
 def plot(mean: dict, grid: str, path: Path) -> None:
     """Average travel velocity vs density per scheme, with the upper bound."""
     from matplotlib.figure import Figure
@@ -185,6 +238,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     for grid in args.grids:
         text, mean = summarise(rows, grid)
         parts += [text, ""]
+        extra = near_miss_table(rows, grid)
+        if extra:
+            parts += [extra, ""]
         plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png")
     (args.out / "paper_table.md").write_text("\n".join(parts))
     print("\n".join(parts))

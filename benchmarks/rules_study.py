@@ -51,6 +51,19 @@ def run_one(rows: int, cols: int, density: float, seed: int, steps: int, **overr
     return episode_summary(sim)
 
 
+def near_miss_columns(per_seed: list[dict]) -> dict:
+    """Released-style velocity (mean over seeds) and near-miss figures over the seeds: the
+    smallest minima, the mean 1st-percentile TTC, the total PET samples below 1 s."""
+    return {
+        "released_velocity_mps": float(np.mean([r["released_velocity_mps"] for r in per_seed])),
+        "min_ttc_s": float(min(r["min_ttc_s"] for r in per_seed)),
+        "ttc_p1_s": float(np.mean([r["ttc_p1_s"] for r in per_seed])),
+        "min_pet_s": float(min(r["min_pet_s"] for r in per_seed)),
+        "pet_under_1s_total": int(sum(r["pet_under_1s"] for r in per_seed)),
+        "min_distance_m": float(min(r["min_distance_m"] for r in per_seed)),
+    }
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=3)
@@ -77,6 +90,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
             "arrived_total": int(sum(r["arrived"] for r in per_seed)),
             "throughput_mean": mean["throughput"],
             "backlog_mean": mean["backlog"],
+            **near_miss_columns(per_seed),
         })
 
     args.out.mkdir(parents=True, exist_ok=True)
@@ -85,14 +99,18 @@ def main(argv: list[str] | None = None) -> list[dict]:
         writer.writeheader()
         writer.writerows(rows)
     header = ("| reading | veh/lane/h | avg travel velocity [m/s] | upper bound [m/s] | "
-              "collisions (sum over seeds) | vehicles arrived | collisions per 1000 arrived |")
-    lines = [header, "|" + "---|" * 7]
+              "collisions (sum over seeds) | vehicles arrived | collisions per 1000 arrived | "
+              "released-style velocity [m/s] | min TTC [s] | TTC 1st pct [s] | min PET [s] | "
+              "PET < 1 s | min distance [m] |")
+    lines = [header, "|" + "---|" * 13]
     for r in rows:
         per_k = 1000.0 * r["collisions_total"] / max(r["arrived_total"], 1)
         lines.append(
             f"| {r['reading']} | {r['density_vplh']:.0f} | {r['avg_travel_velocity_mps']:.3f} | "
             f"{r['upper_bound_mps']:.3f} | {r['collisions_total']} | {r['arrived_total']} | "
-            f"{per_k:.1f} |"
+            f"{per_k:.1f} | {r['released_velocity_mps']:.3f} | {r['min_ttc_s']:.3f} | "
+            f"{r['ttc_p1_s']:.2f} | {r['min_pet_s']:.3f} | {r['pet_under_1s_total']} | "
+            f"{r['min_distance_m']:.3f} |"
         )
     table = "\n".join(lines)
     cmd = ("python benchmarks/rules_study.py --rows {} --cols {} --steps {} --seeds {}".format(

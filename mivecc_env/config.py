@@ -26,6 +26,7 @@ Control = Literal["unsignalized", "signalized", "reservation", "optimisation"]
 SignalController = Literal["fixed-time", "actuated", "max-pressure"]
 EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
+CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
 
 
 class ConfigError(ValueError):
@@ -150,6 +151,12 @@ class MiVeCCConfig:
     k_edge: int = _int(15, 2, 256, "state-graph size K of an edge node")
     k_cloud: int = _int(60, 2, 512, "state-graph size K of the cloud node")
     di_n: int = _int(5, 1, 100, "n of the density indicator (n-th vehicle ahead / behind)")
+    cloud_pick_population: CloudPopulation = _choice(
+        "conflict_ahead", ("conflict_ahead", "before_last_centre", "network"),
+        "vehicles the cloud may pick, and its velocity reward's scope: those with a conflict "
+        "point of their lane still ahead (default), those before the last intersection centre "
+        "of their lane (released code), or all (earlier behaviour: most picks on exit links)",
+    )
 
     # --- end node (Algorithm 3) ---------------------------------------------------------
     eta: float = _num(3.0, 0.0, 100.0, "conversion factor: a_end = SV / eta", lo_open=True)

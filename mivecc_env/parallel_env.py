@@ -25,7 +25,8 @@ Rewards (named terms in ``infos[agent]``):
     ``edge_i``: ``reward_sv`` = ``reward_sv_weight`` x mean SV of its decision vehicles,
     ``reward_velocity`` = mean ``(v - reward_v_ref_mps)`` of the vehicles in its control area,
     ``reward_collision`` = ``-collision_penalty`` x vehicles removed by collision in its area.
-    ``cloud_0``: ``reward_velocity`` over the whole network and ``reward_collision`` over all
+    ``cloud_0``: ``reward_velocity`` over the vehicles it may pick (``cloud_pick_population``:
+    by default those with a conflict point still ahead) and ``reward_collision`` over all
     collisions (``reward_sv`` is 0). The reward is the sum of the terms.
 
 Starting state:
@@ -56,7 +57,12 @@ from pettingzoo import ParallelEnv
 from mivecc_env import metrics
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim.core import Simulator, StepEvents
-from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, edge_graphs
+from mivecc_env.sim.state_graph import (
+    StateGraphs,
+    cloud_graphs,
+    cloud_population,
+    edge_graphs,
+)
 from mivecc_env.sim.virtual_lane import density_indicator
 
 CLOUD_AGENT = "cloud_0"
@@ -277,7 +283,9 @@ class MiVeCCParallelEnv(ParallelEnv):
         self._area = sim.network.control_area(view.lane, view.s)  # also used by the rewards
         self._edge = edge_graphs(sim.network, view, sim.safety.sv, v, a, 1, c, self._area)
         di = density_indicator(view, c.di_n)
-        self._cloud = cloud_graphs(sim.network, view, di, v, a, 1, c)
+        # The cloud picks and is rewarded over one population (cloud_pick_population).
+        self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population)
+        self._cloud = cloud_graphs(sim.network, view, di, v, a, 1, c, self._cloud_pop)
         self._v_view = v
 
     def _observations(self) -> dict[str, np.ndarray]:
@@ -310,7 +318,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         r_col = np.empty(n_int + 1)
         r_sv[:n_int] = c.reward_sv_weight * (sv_sum / np.maximum(n_dec, 1))
         r_vel[:n_int] = vel_sum / np.maximum(count, 1)
-        r_vel[n_int] = dv.mean() if dv.size else 0.0
+        dv_cloud = dv[self._cloud_pop]
+        r_vel[n_int] = dv_cloud.mean() if dv_cloud.size else 0.0
         r_col[:n_int] = -c.collision_penalty * hits
         r_col[n_int] = -c.collision_penalty * float(events.collided_vehicles[0])
         return r_sv, r_vel, r_col

@@ -22,6 +22,7 @@ def test_rules_study_writes_its_table(tmp_path: Path) -> None:
     assert [r["reading"] for r in rows] == ["sensible/acc=ego", "literal/acc=ego"]
     assert all(r["arrived_total"] > 0 for r in rows)
     assert (tmp_path / "rules_study.md").read_text().count("| ") > 4
+    assert all(r["released_velocity_mps"] > 0 and r["min_distance_m"] > 0 for r in rows)
 
 
 def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
@@ -36,6 +37,7 @@ def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
                                str(out / "paper_table.csv")])
     text = (merged / "paper_table.md").read_text()
     assert "EE vs E [%]" in text and "| 1500 |" in text
+    assert "E released-style v [m/s]" in text and "| EE | 1500 |" in text
 
 
 @pytest.mark.parametrize("new, old, expected", [(11.0, 10.0, 10.0), (9.0, 10.0, -10.0)])

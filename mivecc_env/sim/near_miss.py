@@ -346,12 +346,23 @@ class NearMissStats:
             self.min_distance_m[e] = min(self.min_distance_m[e], float(np.sqrt(d2.min())))
 
     # ------------------------------------------------------------------------------------
+    def batch_summary(self) -> dict[str, FloatArray]:
+        """The near-miss keys, (B,) float64 arrays (``inf`` minima without samples)."""
+        return {
+            "min_ttc_s": self.min_ttc_s.copy(),
+            "ttc_p1_s": ttc_percentile(self.ttc_hist),
+            "min_pet_s": self.min_pet_s.copy(),
+            "pet_under_1s": self.pet_under.astype(np.float64),
+            "pet_samples": self.pet_samples.astype(np.float64),
+            "min_distance_m": self.min_distance_m.copy(),
+        }
+
     def summary(self, env: int) -> dict[str, float]:
         """The near-miss keys of one environment (``inf`` minima without samples)."""
-        hist = self.ttc_hist[env : env + 1]
+        one = slice(env, env + 1)
         return {
             "min_ttc_s": float(self.min_ttc_s[env]),
-            "ttc_p1_s": float(ttc_percentile(hist)[0]),
+            "ttc_p1_s": float(ttc_percentile(self.ttc_hist[one])[0]),
             "min_pet_s": float(self.min_pet_s[env]),
             "pet_under_1s": float(self.pet_under[env]),
             "pet_samples": float(self.pet_samples[env]),

@@ -19,12 +19,14 @@ Features (all scaled to ``[-1, 1]``):
 
 Edge node of intersection ``i``: decision vehicles are the (up to) K vehicles with the lowest
 safety value inside its control area; references come from the part of the virtual lane inside
-that area. Cloud node: the K vehicles with the highest density indicator in the whole network;
+that area. Cloud node: the K vehicles with the highest density indicator among its population
+(:func:`cloud_population`: by default the vehicles that still have a conflict point ahead);
 references from the whole virtual lane.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -101,10 +103,48 @@ def select_edge_decisions(
     return chosen[keep], node[keep], column[keep]
 
 
+def cloud_population(
+    network: GridNetwork, view: VirtualLaneView, population: str
+) -> NDArray[np.bool_]:
+    """(n,) True for the view vehicles the cloud may pick (config ``cloud_pick_population``).
+
+    * ``"conflict_ahead"``: a conflict point of its lane is still ahead
+      (``s <`` the lane's last conflict point, ``lane_offset_m`` past its last centre);
+    * ``"before_last_centre"``: before the last intersection centre of its lane (the released
+      code); it differs from ``conflict_ahead`` by the ``lane_offset_m`` (5 m) between the last
+      centre and the last conflict point, where a vehicle still crosses one lane;
+    * ``"network"``: every vehicle (on the exit links nothing conflicts any more).
+    """
+    if population == "network":
+        return np.ones(view.n_vehicles, dtype=bool)
+    if population == "conflict_ahead":
+        marks = network.lane_cp_s
+    elif population == "before_last_centre":
+        marks = network.lane_centres_s
+    else:
+        raise ValueError(
+            "population: must be 'conflict_ahead', 'before_last_centre' or 'network', "
+            f"got {population!r}"
+        )
+    last = np.where(np.isfinite(marks), marks, -np.inf).max(axis=1)
+    return view.s < last[view.lane]
+
+
 def select_cloud_decisions(
-    view: VirtualLaneView, di: FloatArray, k: int, di_max: float
+    view: VirtualLaneView, di: FloatArray, k: int, di_max: float,
+    eligible: NDArray[np.bool_] | None = None,
 ) -> tuple[IntArray, IntArray, IntArray]:
-    """Up to ``k`` highest-DI vehicles per environment: (view index, env, column)."""
+    """Up to ``k`` highest-DI vehicles per environment: (view index, env, column).
+
+    Args:
+        eligible: (n,) the vehicles that may be picked (:func:`cloud_population`); all if None.
+    """
+    if eligible is not None:
+        # Select among the eligible vehicles only (the selection reads ``view.env``).
+        cand = np.flatnonzero(eligible)
+        sub = dataclasses.replace(view, env=view.env[cand])
+        chosen, env, column = select_cloud_decisions(sub, di[cand], k, di_max)
+        return cand[chosen], env, column
     span = di_max + 1.0
     order = np.argsort(view.env * span + (di_max - np.minimum(di, di_max)), kind="stable")
     env = view.env[order]
@@ -217,11 +257,19 @@ def edge_graphs(
 def cloud_graphs(
     network: GridNetwork, view: VirtualLaneView, di: FloatArray, velocity: FloatArray,
     accel: FloatArray, batch: int, config: MiVeCCConfig,
+    eligible: NDArray[np.bool_] | None = None,
 ) -> StateGraphs:
-    """Cloud-node graph, (B, 1, K_cloud, K_cloud, 3)."""
+    """Cloud-node graph, (B, 1, K_cloud, K_cloud, 3).
+
+    Args:
+        eligible: (n,) vehicles the cloud may pick; default
+            ``cloud_population(network, view, config.cloud_pick_population)``.
+    """
     k = config.k_cloud
     longest = float(network.lane_length.max())
-    decision, env, column = select_cloud_decisions(view, di, k, longest)
+    if eligible is None:
+        eligible = cloud_population(network, view, config.cloud_pick_population)
+    decision, env, column = select_cloud_decisions(view, di, k, longest, eligible)
     return build_graphs(
         network, view, velocity, accel, decision, env, column, 1, batch, k, longest, config
     )

@@ -142,6 +142,9 @@ def test_reset_at_clears_one_environment() -> None:
     assert stats.pet_samples.tolist() == [1, 1]
     stats.reset_at(np.array([1]))
     assert stats.pet_samples.tolist() == [1, 0]
+    batch = stats.batch_summary()
+    for env in range(2):
+        assert {k: float(v[env]) for k, v in batch.items()} == stats.summary(env)
     assert np.isfinite(stats.min_ttc_s[0]) and stats.min_ttc_s[1] == np.inf
     assert stats.ttc_hist[1].sum() == 0 and stats.ttc_hist[0].sum() > 0
     assert np.isinf(stats.last_leave_s.reshape(2, -1)[1]).all()
