@@ -36,6 +36,9 @@ with the episode (:meth:`NearMissStats.reset_at` for some environments). Definit
   (``hypot(2 lane_offset, delta)``, exact below ``segment - 2 lane_offset``, the distance of
   parallel roads), and while it is not below that either (a nearly empty network), every pair.
 
+:meth:`NearMissStats.record_step` runs a compiled kernel (``near_miss_kernel``) when numba is
+installed; the numpy code here is its reference (bit-identical, compared in the tests).
+
 A minimum without samples is ``inf`` (the minimum of nothing; so is ``ttc_p1_s``), never NaN:
 the summaries travel in the environments' infos, whose equality checks NaN would break.
 """
@@ -45,6 +48,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from mivecc_env.sim import near_miss_kernel
+from mivecc_env.sim._numba import HAVE_NUMBA
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.virtual_lane import VirtualLaneView
 
@@ -106,6 +111,8 @@ class NearMissStats:
         # Side (0 horizontal, 1 vertical) of each lane at its conflict points.
         self._lane_side = (~network.lane_horizontal).astype(np.int64)
         self._build_marks()
+        #: Use the compiled kernel (bit-identical to the numpy reference) when numba is there.
+        self.use_kernel = HAVE_NUMBA
 
     def _build_marks(self) -> None:
         """Conflict points and reach / leave marks of each (lane, intersection on it)."""
@@ -162,8 +169,23 @@ class NearMissStats:
         """
         if view.n_vehicles == 0:
             return
-        self._record_ttc(view, v_old)
         net = self.network
+        if self.use_kernel:
+            t0 = np.broadcast_to(np.asarray(t0_s, dtype=np.float64), (self.batch_size,))
+            near_miss_kernel.record(
+                view.env, view.lane, view.s, s_new, v_old, view.front_point, view.point_vehicle,
+                view.d_front, view.leader, gone, np.ascontiguousarray(t0), float(dt_s),
+                self._mark_pos_flat, self._mark_cp_flat, self._cp_s_flat,
+                self._cp_side_key_flat, self._lane_side, net.segment_length_m,
+                net.lane_offset_m, 0.5 * self.length_m, net.lane_centres_s.shape[1], net.n_cp,
+                self._local, self._local_step_m, _N_TTC_BINS, 1.0 / TTC_BIN_S,
+                PET_THRESHOLD_S, self.min_ttc_s, self.ttc_hist, self.min_pet_s,
+                self.pet_samples, self.pet_under, self.last_leave_s, self.last_leave_side,
+                self.min_distance_m,
+            )
+            self._far_pairs(view, s_new, gone)
+            return
+        self._record_ttc(view, v_old)
         s_old = view.s
         moved = s_new - s_old
         max_move = float(moved.max())
@@ -196,6 +218,14 @@ class NearMissStats:
             self._record_pet(lane, env, so, sn, mark_pos, mark_cp, t0_s, dt_s)
             self._crossing_pairs(env, sn, cp_s, cp_key, step_min)
         np.minimum(self.min_distance_m, step_min, out=self.min_distance_m)
+        self._far_pairs(view, s_new, gone)
+
+    def _far_pairs(
+        self, view: VirtualLaneView, s_new: FloatArray, gone: NDArray[np.bool_]
+    ) -> None:
+        """The pairs the fast path leaves out, while an environment's minimum allows them."""
+        net = self.network
+        off, seg = net.lane_offset_m, net.segment_length_m
         # Every other pair is at least 2 * offset apart. While an environment has seen no
         # closer pair: opposite lanes of one road (exact below segment - 2 * offset, the
         # distance of parallel roads), and while none closer than that either, every pair.

@@ -10,12 +10,23 @@ import numpy as np
 import pytest
 
 from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim._numba import HAVE_NUMBA
+from mivecc_env.sim.core import Simulator
 from mivecc_env.sim.near_miss import TTC_BIN_S, NearMissStats, ttc_percentile
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.virtual_lane import build_view
 from tests.sim._scenario import EAST, NORTH, WEST
 
 DT = 0.1
+KERNEL = [True]
+
+
+@pytest.fixture(autouse=True, params=["kernel", "numpy"])
+def _path(request: pytest.FixtureRequest) -> None:
+    """Run every hand-computed case through the compiled kernel and the numpy reference."""
+    if request.param == "kernel" and not HAVE_NUMBA:
+        pytest.skip("numba is not installed")
+    KERNEL[0] = request.param == "kernel"
 
 
 def drive(config: MiVeCCConfig, vehicles: list[tuple[int, float, float]], steps: int,
@@ -23,6 +34,7 @@ def drive(config: MiVeCCConfig, vehicles: list[tuple[int, float, float]], steps:
     """Move ``(lane, s, v)`` vehicles at constant speed for ``steps`` steps in every env."""
     net = GridNetwork.from_config(config)
     stats = NearMissStats(net, batch, config.vehicle_length_m)
+    stats.use_kernel = KERNEL[0]
     n = len(vehicles)
     active = np.ones((batch, n), dtype=bool)
     lane = np.tile(np.array([x[0] for x in vehicles], dtype=np.int64), (batch, 1))
@@ -149,3 +161,28 @@ def test_reset_at_clears_one_environment() -> None:
     assert stats.ttc_hist[1].sum() == 0 and stats.ttc_hist[0].sum() > 0
     assert np.isinf(stats.last_leave_s.reshape(2, -1)[1]).all()
     assert stats.summary(1)["min_distance_m"] == np.inf
+
+
+@pytest.mark.parametrize(("rows", "batch", "steps"), [(1, 1, 400), (3, 2, 300)])
+def test_kernel_matches_the_numpy_reference(rows: int, batch: int, steps: int) -> None:
+    # both paths fed the same steps of a busy simulation give bit-identical accumulators
+    if not KERNEL[0]:
+        pytest.skip("compares both paths once")
+    cfg = MiVeCCConfig(rows=rows, cols=rows, density_vplh=2100)
+    sim = Simulator(cfg, batch_size=batch, seed=0)
+    ref = NearMissStats(sim.network, batch, cfg.vehicle_length_m)
+    ref.use_kernel = False
+    record = sim.near_miss.record_step
+
+    def both(*args: object) -> None:
+        record(*args)
+        ref.record_step(*args)
+
+    sim.near_miss.record_step = both
+    for _ in range(steps):
+        sim.step()
+    ker = sim.near_miss
+    assert ker.pet_samples.sum() > 0 and ker.ttc_hist.sum() > 0
+    for name in ("min_ttc_s", "ttc_hist", "min_pet_s", "pet_samples", "pet_under",
+                 "min_distance_m", "last_leave_s", "last_leave_side"):
+        np.testing.assert_array_equal(getattr(ker, name), getattr(ref, name), err_msg=name)
