@@ -97,7 +97,14 @@ def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
         "mean_trip_time_s": float(sim.sum_trip_time[env] / n) if exited else 0.0,
         "mean_wait_time_s": float(sim.sum_wait_time[env] / n) if exited else 0.0,
         "sim_time_s": float(sim_time),
-        "released_velocity_mps": float(sim.passing.velocity_mps()[env]),
-        "released_passed": float(sim.passing.count[env]),
-        **sim.near_miss.summary(env),
+        **{key: float(value[env]) for key, value in released_and_near_miss(sim).items()},
+    }
+
+
+def released_and_near_miss(sim: Simulator) -> dict[str, np.ndarray]:
+    """The released-style velocity and near-miss keys of every environment, (B,) float64."""
+    return {
+        "released_velocity_mps": sim.passing.velocity_mps(),
+        "released_passed": sim.passing.count.astype(np.float64),
+        **sim.near_miss.batch_summary(),
     }
