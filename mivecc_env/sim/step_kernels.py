@@ -59,60 +59,57 @@ def safety_inputs(
 
 
 @njit
+def _near_conflict_point(x, seg, reach):  # pragma: no cover
+    return np.abs(x - np.rint(x / seg) * seg) < reach
+
+
+@njit
 def _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, n_cp, seg, off,
                      length):  # pragma: no cover
+    # Arrays are sized by upper bounds (growing them inside a loop defeats numba's optimiser).
     n = s_new.size
-    cap = 16
-    pa = np.empty(cap, np.int64)
-    pb = np.empty(cap, np.int64)
+    n_col = lane_cp_s.shape[1]
+    reach = off + length
+    # vehicles within a vehicle length of a conflict point, in (vehicle, column) order
+    m = 0
+    for i in range(n):
+        if not exited[i] and _near_conflict_point(s_new[i], seg, reach):
+            for c in range(n_col):
+                if np.abs(s_new[i] - lane_cp_s[lane[i], c]) < length:
+                    m += 1
+    vi = np.empty(m, np.int64)
+    key = np.empty(m, np.int64)
+    dd = np.empty(m, np.float64)
+    j = 0
+    for i in range(n):
+        if not exited[i] and _near_conflict_point(s_new[i], seg, reach):
+            ln = lane[i]
+            for c in range(n_col):
+                delta = s_new[i] - lane_cp_s[ln, c]
+                if np.abs(delta) < length:
+                    vi[j] = i
+                    key[j] = env[i] * n_cp + lane_cp[ln, c]
+                    dd[j] = delta
+                    j += 1
+    pa = np.empty(n + 7 * m, np.int64)
+    pb = np.empty(n + 7 * m, np.int64)
     k = 0
     for i in range(n):
         ld = leader[i]
         if ld >= 0 and not exited[i] and not exited[ld] and s_new[ld] - s_new[i] < length:
-            if k == pa.size:
-                pa = np.concatenate((pa, np.empty(pa.size, np.int64)))
-                pb = np.concatenate((pb, np.empty(pb.size, np.int64)))
             pa[k] = i
             pb[k] = ld
             k += 1
-    # vehicles within a vehicle length of a conflict point, in (vehicle, column) order
-    n_col = lane_cp_s.shape[1]
-    m = 0
-    vi = np.empty(16, np.int64)
-    key = np.empty(16, np.int64)
-    dd = np.empty(16, np.float64)
-    reach = off + length
-    for i in range(n):
-        if exited[i]:
-            continue
-        x = s_new[i]
-        if np.abs(x - np.rint(x / seg) * seg) >= reach:
-            continue
-        ln = lane[i]
-        for c in range(n_col):
-            delta = x - lane_cp_s[ln, c]
-            if np.abs(delta) < length:
-                if m == vi.size:
-                    vi = np.concatenate((vi, np.empty(vi.size, np.int64)))
-                    key = np.concatenate((key, np.empty(key.size, np.int64)))
-                    dd = np.concatenate((dd, np.empty(dd.size, np.float64)))
-                vi[m] = i
-                key[m] = env[i] * n_cp + lane_cp[ln, c]
-                dd[m] = delta
-                m += 1
     if m > 1:
-        order = np.argsort(key[:m], kind="mergesort")
-        vs, ks, ds = vi[:m][order], key[:m][order], dd[:m][order]
-        for shift in range(1, 8):
+        order = np.argsort(key, kind="mergesort")
+        vs, ks, ds = vi[order], key[order], dd[order]
+        for shift in range(1, 8):  # as the reference: at most a few vehicles share a point
             if shift >= m:
                 break
-            for j in range(m - shift):
-                a, b = j, j + shift
+            for a in range(m - shift):
+                b = a + shift
                 if (ks[a] == ks[b] and lane[vs[a]] != lane[vs[b]]
                         and ds[a] ** 2 + ds[b] ** 2 < length ** 2):
-                    if k == pa.size:
-                        pa = np.concatenate((pa, np.empty(pa.size, np.int64)))
-                        pb = np.concatenate((pb, np.empty(pb.size, np.int64)))
                     pa[k] = vs[a]
                     pb[k] = vs[b]
                     k += 1
