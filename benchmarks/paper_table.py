@@ -174,12 +174,15 @@ def near_miss_table(rows: list[dict[str, Any]], grid: str) -> str:
     return "\n".join(lines)
 
 
-def plot(mean: dict, grid: str, path: Path) -> None:
-    """Average travel velocity vs density per scheme, with the upper bound."""
+def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = None) -> None:
+    """Average travel velocity vs density per scheme, with the upper bound; with the per-seed
+    ``rows``, a second panel: each scheme's gain over MiVeCC-E [%], paired by seed (mean and
+    standard deviation over seeds, and every seed as a dot). NaN (no data) leaves a gap."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(7, 4.5))
-    ax = fig.add_subplot()
+    gains = _gains_over_e(rows, grid) if rows else {}
+    fig = Figure(figsize=(7, 7.5 if gains else 4.5))
+    ax = fig.add_subplot(2, 1, 1) if gains else fig.add_subplot()
     schemes = sorted({s for s, _ in mean}, key=SCHEMES.index)
     for s in schemes:
         ds = sorted(d for t, d in mean if t == s)
@@ -193,8 +196,41 @@ def plot(mean: dict, grid: str, path: Path) -> None:
     ax.set_title(f"Average travel velocity vs density, {grid} grid")
     ax.grid(alpha=0.3)
     ax.legend()
+    if gains:
+        gx = fig.add_subplot(2, 1, 2, sharex=ax)
+        colours = {s: line.get_color() for s, line in zip(
+            schemes, [c.lines[0] for c in ax.containers], strict=True)}
+        for s, per_d in gains.items():
+            ds = sorted(per_d)
+            m = [float(np.mean(per_d[d])) for d in ds]
+            sd = [float(np.std(per_d[d])) for d in ds]
+            gx.errorbar(ds, m, yerr=sd, marker="o", capsize=3, color=colours.get(s),
+                        label=f"MiVeCC-{s} (mean ± sd over seeds)")
+            for d in ds:
+                gx.plot([d] * len(per_d[d]), per_d[d], ".", color=colours.get(s), alpha=0.4)
+        gx.axhline(0.0, color="k", lw=0.8)
+        gx.set_xlabel("density [veh/lane/h]")
+        gx.set_ylabel("gain over MiVeCC-E [%]")
+        gx.set_title("Average travel velocity gain over MiVeCC-E, paired by seed (dots)")
+        gx.grid(alpha=0.3)
+        gx.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+def _gains_over_e(rows: list[dict[str, Any]], grid: str) -> dict[str, dict[float, list[float]]]:
+    """``scheme -> density -> [gain over E of each seed, %]`` for EE/EEC (same density + seed)."""
+    r, c = (int(x) for x in grid.split("x"))
+    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
+    base = {(x["density"], x["seed"]): x["avg_travel_velocity_mps"]
+            for x in mine if x["scheme"] == "E"}
+    out: dict[str, dict[float, list[float]]] = {}
+    for x in mine:
+        key = (x["density"], x["seed"])
+        if x["scheme"] in ("EE", "EEC") and key in base:
+            gain = improvement(x["avg_travel_velocity_mps"], base[key])
+            out.setdefault(x["scheme"], {}).setdefault(x["density"], []).append(gain)
+    return out
 
 
 def main(argv: Sequence[str] | None = None) -> Path:
@@ -241,7 +277,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         extra = near_miss_table(rows, grid)
         if extra:
             parts += [extra, ""]
-        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png")
+        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png", rows)
     (args.out / "paper_table.md").write_text("\n".join(parts))
     print("\n".join(parts))
     return args.out
