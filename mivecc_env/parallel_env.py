@@ -38,7 +38,12 @@ Episode end:
 
 Arguments:
     Any field of :class:`mivecc_env.config.MiVeCCConfig` as a keyword (``density`` is accepted
-    for ``density_vplh``), or ``config=MiVeCCConfig(...)``; ``render_mode="rgb_array"``.
+    for ``density_vplh``, ``max_cycles`` for ``max_steps``), or ``config=MiVeCCConfig(...)``;
+    ``render_mode="rgb_array"`` or ``"human"``.
+
+State:
+    ``state()`` is the cloud node's state graph, in ``state_space``
+    (``Box(-1, 1, (K_cloud, K_cloud, 3), float32)``), whatever the scheme.
 
 Version history:
     v0: first release.
@@ -64,6 +69,7 @@ from mivecc_env.sim.state_graph import (
     edge_graphs,
 )
 from mivecc_env.sim.virtual_lane import density_indicator
+from mivecc_env.viewer import HumanViewer
 
 CLOUD_AGENT = "cloud_0"
 
@@ -81,8 +87,11 @@ class MiVeCCParallelEnv(ParallelEnv):
 
     Args:
         config: a :class:`MiVeCCConfig`; keyword ``overrides`` replace its fields.
-        render_mode: ``None`` or ``"rgb_array"``.
-        **overrides: config fields (``density`` is accepted for ``density_vplh``).
+        render_mode: ``None``, ``"rgb_array"`` (``render()`` returns a frame) or ``"human"``
+            (a matplotlib window updated at every reset and step; headless-safe, see
+            :mod:`mivecc_env.viewer`).
+        **overrides: config fields (``density`` is accepted for ``density_vplh``, ``max_cycles``
+            for ``max_steps``).
 
     Raises:
         ConfigError: an unknown keyword, a value out of range, a ``config`` that is not a
@@ -90,7 +99,7 @@ class MiVeCCParallelEnv(ParallelEnv):
     """
 
     metadata = {
-        "render_modes": ["rgb_array"],
+        "render_modes": ["human", "rgb_array"],
         "name": "mivecc_v0",
         "is_parallelizable": True,
         "render_fps": 10,
@@ -111,6 +120,7 @@ class MiVeCCParallelEnv(ParallelEnv):
                 f"got {render_mode!r}"
             )
         self.render_mode = render_mode
+        self._viewer: HumanViewer | None = None
         self.sim = Simulator(self.config, batch_size=1, seed=0)
         c = self.config
         n = c.n_intersections
@@ -127,6 +137,7 @@ class MiVeCCParallelEnv(ParallelEnv):
             a: spaces.Box(-c.a_max_mps2, c.a_max_mps2, (k,), dtype=np.float32)
             for a, k in self._k.items()
         }
+        self.state_space = spaces.Box(-1.0, 1.0, (c.k_cloud, c.k_cloud, 3), dtype=np.float32)
         # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
         self._a_limit = c.a_max_mps2 + 1e-6
         self._seed_rng = np.random.default_rng()
@@ -168,6 +179,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         self.agents = list(self.possible_agents)
         self._observe()
         zero = np.zeros(len(self.possible_agents))
+        if self.render_mode == "human":
+            self.render()
         return self._observations(), self._infos(zero, zero, zero)
 
     def step(
@@ -203,6 +216,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         obs, infos = self._observations(), self._infos(r_sv, r_vel, r_col)
         if truncated:
             self.agents = []
+        if self.render_mode == "human":
+            self.render()
         return obs, rewards, terminations, truncations, infos
 
     # ------------------------------------------------------------------------------------
@@ -358,15 +373,24 @@ class MiVeCCParallelEnv(ParallelEnv):
         return metrics.episode_summary(self.sim, 0)
 
     def render(self) -> np.ndarray | None:
-        """An RGB frame of the network (``render_mode="rgb_array"``), else ``None``."""
+        """An RGB frame of the network (``render_mode="rgb_array"``); ``"human"`` draws it in
+        the window and returns ``None``, as does ``render_mode=None``."""
         if self.render_mode is None:
             return None
         from mivecc_env.render import render_rgb
 
-        return render_rgb(self.sim, 0)
+        frame = render_rgb(self.sim, 0)
+        if self.render_mode == "rgb_array":
+            return frame
+        if self._viewer is None:
+            self._viewer = HumanViewer(self.metadata["name"], self.metadata["render_fps"])
+        self._viewer.show(frame)
+        return None
 
     def close(self) -> None:
-        """Nothing to release."""
+        """Close the ``"human"`` window, if any."""
+        if self._viewer is not None:
+            self._viewer.close()
 
     def state(self) -> np.ndarray:
         """Global state: the cloud node's state graph (float32, (K_cloud, K_cloud, 3))."""
