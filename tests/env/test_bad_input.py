@@ -130,7 +130,7 @@ def test_single_agent_bad_action() -> None:
         ({"max_steps": 0}, "max_steps", ("[1, ",)),
         ({"scheme": "X"}, "scheme", ("'E', 'EE', 'EEC'",)),
         ({"k_edge": 1}, "k_edge", ("[2, 256]",)),
-        ({"render_mode": "human"}, "render_mode", ("rgb_array", "'human'")),
+        ({"render_mode": "ansi"}, "render_mode", ("rgb_array", "'ansi'")),
         ({"config": {"rows": 1}}, "config", ("MiVeCCConfig", "dict")),
         ({"densty": 900}, "densty", ("unknown", "did you mean 'density'")),
         ({"seed": 3}, "seed", ("unknown",)),
