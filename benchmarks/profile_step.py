@@ -37,6 +37,8 @@ PHASES = (
     ("    motion (bounded_motion)", "end_node.py", "bounded_motion"),
     ("    exits (_record_exits)", "core.py", "_record_exits"),
     ("    collisions (_remove_collisions)", "core.py", "_remove_collisions"),
+    ("    near-miss measures (record_step)", "near_miss.py", "record_step"),
+    ("    passing times (record)", "passing.py", "record"),
     ("    entries (_enter_vehicles)", "core.py", "_enter_vehicles"),
     ("      arrivals.advance", "arrivals.py", "advance"),
     ("  edge state graphs", "state_graph.py", "edge_graphs"),
