@@ -89,7 +89,7 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
         steps = sorted({int(float(x["steps"])) for x in sub})
         lines += [f"### {r}x{c}: average travel velocity [m/s] (mean over seeds {seeds}, "
                   f"{'/'.join(map(str, steps))} steps); collisions summed over the seeds in "
-                  "brackets", ""]
+                  "brackets; n = runs where fewer than the seeds", ""]
         lines.append("| density | " + " | ".join(schemes) + " | upper bound | max-pressure vs "
                      "fixed-time |")
         lines.append("|---" * (len(schemes) + 3) + "|")
@@ -105,7 +105,8 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                 v = _mean(runs, "avg_travel_velocity_mps")[0]
                 vel[s] = v
                 coll = int(sum(float(x["collisions"]) for x in runs))
-                cells.append(f"{v:.2f} ({coll})")
+                few = f" n={len(runs)}" if len(runs) < len(seeds) else ""
+                cells.append(f"{v:.2f} ({coll}){few}")
                 bound = f"{float(runs[0]['upper_bound_mps']):.2f}"
             gain = ""
             if vel.get("fixed-time") and "max-pressure" in vel:
@@ -171,6 +172,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--workers", type=int, default=1, help="processes (1: in this process)")
     p.add_argument("--from-csv", nargs="+", type=Path, default=[],
                    help="reuse matching runs of earlier CSVs")
+    p.add_argument("--tabulate-only", action="store_true",
+                   help="simulate nothing: tables and figures of the runs found in --from-csv")
     p.add_argument("--out", type=Path, default=Path("docs/results/comparison"))
     return p.parse_args(argv)
 
@@ -192,6 +195,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         rows.append(known[key])
                     else:
                         jobs.append((s, r, c, float(d), steps, seed))
+    if args.tabulate_only:
+        jobs = []
     print(f"{len(rows)} runs reused, {len(jobs)} to simulate", flush=True)
     csv_path = args.out / "comparison.csv"
     if jobs and args.workers <= 1:
