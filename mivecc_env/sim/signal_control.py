@@ -226,3 +226,54 @@ def approach_counts(network: GridNetwork, config: MiVeCCConfig, view: VirtualLan
     out["calls"] = count(before & (s <= line))
     out["detected"] = count(before & (s <= line) & (s >= line - config.actuated_detector_m))
     return out
+
+
+#: Features per approach in :func:`signal_observation` and the phase features after them.
+APPROACH_FEATURES = ("approaching", "queue", "mean_speed_mps")
+PHASE_FEATURES = ("phase", "stage", "elapsed_s")
+#: Velocity below which an approaching vehicle counts as queued [m/s].
+QUEUE_SPEED_MPS = 0.5
+
+
+def signal_observation(network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView,
+                       s: FloatArray, v: FloatArray, phases: SignalPhases
+                       ) -> tuple[FloatArray, dict[str, FloatArray]]:
+    """What a signal controller sees, per intersection, and its reward terms.
+
+    Returns:
+        obs: (B, n_int, 4 * 3 + 3): for each approach (lane heading east, west, north, south,
+            :data:`network.HEADINGS`) the vehicles within ``control_radius_m`` before the centre
+            (``approaching``), those of them slower than :data:`QUEUE_SPEED_MPS` (``queue``) and
+            their mean velocity [m/s] (0 without vehicles); then the current phase (0 / 1), its
+            stage (0 green, 1 yellow, 2 all-red) and the seconds spent in that stage.
+        terms: (B, n_int) reward terms, ``reward_queue`` = -(queued vehicles) and
+            ``reward_pressure`` = -|upstream - downstream vehicles over all approaches|.
+    """
+    b, n_int = phases.batch_size, network.n_intersections
+    approaching = np.zeros((b, n_int, 4))
+    queue = np.zeros((b, n_int, 4))
+    speed_sum = np.zeros((b, n_int, 4))
+    counts = approach_counts(network, config, view, s, b)
+    if s.size:
+        lane = view.lane
+        r, seg = config.control_radius_m, network.segment_length_m
+        n_on = network.lane_centres_s.shape[1]
+        k = np.clip(np.floor((s + r) / seg).astype(np.int64) - 1, 0, n_on - 1)
+        centre = network.lane_centres_s[lane, k]
+        inter = network.lane_intersections[lane, k]
+        before = (s >= centre - r) & (s < centre) & (inter >= 0)
+        flat = ((view.env * n_int + np.maximum(inter, 0)) * 4 + network.lane_heading[lane])
+        size = b * n_int * 4
+        shape = (b, n_int, 4)
+        approaching = np.bincount(flat[before], minlength=size).reshape(shape).astype(float)
+        queue = np.bincount(flat[before & (v < QUEUE_SPEED_MPS)],
+                            minlength=size).reshape(shape).astype(float)
+        speed_sum = np.bincount(flat[before], v[before], minlength=size).reshape(shape)
+    mean_speed = np.where(approaching > 0, speed_sum / np.maximum(approaching, 1), 0.0)
+    per_approach = np.stack([approaching, queue, mean_speed], axis=-1).reshape(b, n_int, 12)
+    phase_part = np.stack([phases.phase, phases.stage, phases.elapsed * config.dt_s],
+                          axis=-1).astype(float)
+    obs = np.concatenate([per_approach, phase_part], axis=-1)
+    pressure = (counts["upstream"] - counts["downstream"]).sum(axis=-1)
+    terms = {"reward_queue": -queue.sum(axis=-1), "reward_pressure": -np.abs(pressure)}
+    return obs, terms

@@ -169,3 +169,21 @@ def test_bad_signal_actions_are_rejected() -> None:
     unsignalized = Simulator(MiVeCCConfig(rows=1, cols=1), seed=0)
     with pytest.raises(ValueError, match="only under control='signalized'"):
         unsignalized.step(signal_phase=np.array([[0]]))
+
+
+def test_signal_observation_and_reward_terms() -> None:
+    cfg = _cfg()
+    sim = Simulator(cfg, seed=0)
+    place(sim, [(EAST, 130.0, 0.0), (EAST, 120.0, 0.2), (WEST, 100.0, 6.0),
+                (NORTH, 160.0, 8.0)])
+    sim.signal_phases.elapsed[:] = 42
+    obs, terms = sc.signal_observation(sim.network, cfg, sim.view, sim.view.s,
+                                       sim.v.ravel()[sim.view.vehicle], sim.signal_phases)
+    assert obs.shape == (1, 1, 15)
+    east, west, north = obs[0, 0, 0:3], obs[0, 0, 3:6], obs[0, 0, 6:9]
+    assert east.tolist() == pytest.approx([2, 2, 0.1])
+    assert west.tolist() == pytest.approx([1, 0, 6.0])
+    assert north.tolist() == [0, 0, 0]  # past the centre: downstream, not approaching
+    assert obs[0, 0, 12:].tolist() == pytest.approx([0, sc.STAGE_GREEN, 4.2])
+    assert terms["reward_queue"].tolist() == [[-2.0]]
+    assert terms["reward_pressure"].tolist() == [[-2.0]]  # 3 upstream - 1 downstream
