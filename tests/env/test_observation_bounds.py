@@ -63,7 +63,7 @@ def test_signal_braking_stays_in_the_box() -> None:
 def test_long_random_runs_stay_in_the_box(control: str, scheme: str) -> None:
     for seed, (rows, cols, density) in enumerate([(2, 2, 3000), (1, 3, 1500), (1, 1, 3600)]):
         random_run_stays_in_box(
-            2000, seed=seed, rows=rows, cols=cols, density=density, control=control,
+            1000, seed=seed, rows=rows, cols=cols, density=density, control=control,
             scheme=scheme,
         )
 
