@@ -4,7 +4,7 @@ Path: ``mivecc_env.benchmarl_task.MiVeCCTask`` (``EDGES``: homogeneous edge agen
 edge and cloud groups) -> BenchMARL's ``Experiment`` with its own algorithm and MLP configs.
 
 Install (no ``train`` extra: BenchMARL 1.5.x needs torchrl < 0.12, mivecc's env needs no torchrl):
-    pip install mivecc "benchmarl==1.5.2" torch==2.13.0
+    pip install ".[benchmarl]" torch==2.13.0
 
 Run:
     python examples/benchmarl_marl.py --algo mappo --iters 2

@@ -12,7 +12,7 @@ RLlib has default CNNs only for 10x10, 42x42, 64x64, 84x84 and 96x96 images, so 
   60 -> 30 -> 15 -> 8 -> 4 for the cloud; RLlib pads "same" and flattens the last map);
 * ``--obs flat``: RLlib's ``FlattenObservations`` env-to-module connector, then its default MLP.
 
-Install: ``pip install "mivecc[rllib]"`` (``ray[rllib]``; it brings the gymnasium it needs).
+Install: ``pip install ".[rllib]" torch==2.13.0`` (``ray[rllib]`` brings the gymnasium it needs).
 
 Run:
     python examples/rllib_ppo.py --iters 2

@@ -10,7 +10,7 @@ Seeding: SuperSuit 3.11's SB3 wrapper has no ``seed()``, so ``PPO(seed=...)`` ra
 concatenated vector env (copy ``i`` gets ``seed + i``; later resets continue each copy's
 sequence).
 
-Install: ``pip install "mivecc[sb3]"`` (stable-baselines3, supersuit; torch==2.13.0 for CPU).
+Install: ``pip install ".[sb3]" torch==2.13.0`` (stable-baselines3, supersuit).
 
 Run:
     python examples/sb3_ppo_supersuit.py --steps 1024

@@ -3,7 +3,7 @@
 Path: ``gymnasium.make("mivecc/MiVeCCEdge-v0")`` (registered on ``import mivecc_env``) ->
 ``SAC("MlpPolicy")``. The other edge nodes and the cloud node send no action.
 
-Install: ``pip install "mivecc[sb3]"``.
+Install: ``pip install ".[sb3]" torch==2.13.0``.
 
 Run:
     python examples/sb3_sac_gymnasium.py --steps 300

@@ -6,7 +6,7 @@ Path: ``mivecc_edges_v0.parallel_env`` -> ``torchrl.envs.PettingZooWrapper`` (on
 flattened (``FlattenObservation``) for the MLPs; the columns' ``mask`` is not used (a plain
 baseline; the project's own agents in ``mivecc_agents`` mask padded columns).
 
-Install: ``pip install "mivecc[train]"`` (torch, torchrl >= 0.14, tensordict).
+Install: ``pip install -c constraints.txt ".[train]"`` (torch, torchrl >= 0.14, tensordict).
 
 Run:
     python examples/torchrl_marl.py --algo mappo --iters 2
