@@ -362,18 +362,27 @@ def check_train_checkpoints(args: argparse.Namespace) -> None:
     """Load ``--edge-checkpoint`` (stage II) and ``--resume`` as policies before training, so a
     wrong file, kind or weight shape is one line and exit 2 (not a traceback mid-setup)."""
     from mivecc_agents.checkpoints import CheckpointError
-    from mivecc_agents.policies import load_policy
+    from mivecc_agents.policies import check_policy_config, load_policy
 
-    checks = [("--resume", args.resume, args.stage)]
-    if args.stage == "cloud":
-        checks.append(("--edge-checkpoint", args.edge_checkpoint, "edge"))
+    checks = [("--edge-checkpoint", args.edge_checkpoint, "edge")] if args.stage == "cloud" else []
+    checks.append(("--resume", args.resume, args.stage))
     for option, path, kind in checks:
         if path is None:
             continue
         try:
-            load_policy(path, expected_kind=kind)
+            policy = load_policy(path, expected_kind=kind)
+            if option == "--edge-checkpoint":  # frozen in stage II: does it fit that env?
+                for message in check_policy_config(policy, _stage2_config(args)):
+                    print(f"{PROG}: warning: {option}: {message}", file=sys.stderr)
         except CheckpointError as exc:
             raise ConfigError(f"{option}: {exc}") from exc
+
+
+def _stage2_config(args: argparse.Namespace) -> MiVeCCConfig:
+    """The stage-II training env's config (as ``mivecc train`` builds it, first density)."""
+    return _config_from(None, **{**parse_set_items(args.set_items), "rows": args.rows or 3,
+                                 "cols": args.cols or 3, "density": args.density[0],
+                                 "scheme": "EEC"})
 
 
 COMMANDS.append(add_train_parser)

@@ -61,6 +61,7 @@ from pettingzoo import ParallelEnv
 
 from mivecc_env import metrics
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
+from mivecc_env.sim.checks import check_seed
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import (
     StateGraphs,
@@ -173,7 +174,7 @@ class MiVeCCParallelEnv(ParallelEnv):
             Observations and infos of every agent.
         """
         if seed is not None:
-            self._seed_rng = np.random.default_rng(seed)
+            self._seed_rng = np.random.default_rng(check_seed(seed))
         sim_seed = int(self._seed_rng.integers(0, 2**63 - 1))
         self.sim.reset(sim_seed)
         self.agents = list(self.possible_agents)

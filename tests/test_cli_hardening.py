@@ -172,3 +172,29 @@ def test_train_stdout_is_only_the_checkpoint_path(tmp_path: Path) -> None:
     assert proc.stdout.splitlines() == [str(tmp_path / "run" / "edge.pt")]
     assert "PettingZoo in TorchRL is tested" not in proc.stderr
     assert (tmp_path / "run" / "edge.pt").is_file()
+
+
+def test_train_warns_when_the_frozen_edge_policy_was_trained_elsewhere(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Stage II with an edge checkpoint trained under other dynamics: a warning on stderr (the
+    run is stopped here by a missing --resume file, checked next, so nothing heavy runs)."""
+    from mivecc_agents.checkpoints import save_checkpoint
+    from mivecc_agents.networks import make_actor_net, make_critic_net
+
+    edge = save_checkpoint(tmp_path / "edge.pt", {
+        "stage": "edge", "kind": "edge", "grid_size": 15,
+        "actor": make_actor_net("edge").state_dict(),
+        "critic": make_critic_net("edge").state_dict(), "frames": 0, "updates": 0,
+        "metrics": {}, "preset": {},
+        "config": MiVeCCConfig(rows=1, cols=1, scheme="EE", v_max_mps=15.0).to_dict(),
+    })
+    code = main(["train", "--no-progress", "--stage", "cloud", "--edge-checkpoint", str(edge),
+                 "--resume", str(tmp_path / "missing.pt"), "--out", str(tmp_path / "run")])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 2, err
+    assert lines[0].startswith("mivecc: warning: --edge-checkpoint: trained with other dynamics")
+    assert "v_max_mps=15.0 (here 13.0)" in lines[0]
+    assert lines[1].startswith("mivecc: error: --resume:")

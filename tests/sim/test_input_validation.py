@@ -156,3 +156,15 @@ def test_time_step_that_lets_a_vehicle_pass_another_is_rejected() -> None:
     MiVeCCConfig(dt_s=0.3)  # 3.9 m < 4 m
     with pytest.raises(ConfigError, match=r"^dt_s: "):
         MiVeCCConfig(dt_s=0.1, v_max_mps=40.0, vehicle_length_m=1.0)
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, "abc", {"a": 1}])
+def test_parallel_env_reset_bad_seed_names_argument(bad: object) -> None:
+    from mivecc_env import mivecc_v0
+
+    env = mivecc_v0.parallel_env(rows=1, cols=1)
+    with pytest.raises(ValueError, match=r"^seed: must be None, an integer >= 0"):
+        env.reset(seed=bad)  # type: ignore[arg-type]
+    obs_a, _ = env.reset(seed=np.int64(3))
+    obs_b, _ = env.reset(seed=3)
+    assert all(np.array_equal(obs_a[k], obs_b[k]) for k in obs_a)
