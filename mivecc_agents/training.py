@@ -667,9 +667,10 @@ def _metrics(
     nxt = data["next"]
     reward = nxt[group, "reward"]
     done = nxt["done"].reshape(-1)
-    vel = nxt[group, "info", "avg_travel_velocity_mps"]  # (..., n_agents)
-    vel = torch.where(nxt[group, "info", "throughput"] > 0, vel, math.nan)  # NaN: none exited
-    coll = nxt[group, "info", "collisions"]
+    # The episode summary is in the cloud agent's info (the whole network), shape (..., 1).
+    vel = nxt["cloud", "info", "avg_travel_velocity_mps"]
+    vel = torch.where(nxt["cloud", "info", "throughput"] > 0, vel, math.nan)  # NaN: none exited
+    coll = nxt["cloud", "info", "collisions"]
     row: dict[str, float] = {
         "iteration": state["iteration"],
         "frames": state["frames"],

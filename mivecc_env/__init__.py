@@ -1,6 +1,7 @@
 """mivecc_env: the MiVeCC road-network simulator and its PettingZoo / Gymnasium environments.
 
 * :mod:`mivecc_env.sim` -- the batched numpy simulator (no RL imports);
+* :mod:`mivecc_env.batched` -- :class:`BatchedMiVeCCEnv`, B environments as numpy arrays;
 * :mod:`mivecc_env.mivecc_v0` -- ``parallel_env()`` / ``env()`` (PettingZoo);
 * :mod:`mivecc_env.mivecc_edges_v0` -- the edge-only view (homogeneous agents, no ``cloud_0``);
 * ``pettingzoo.make("parallel" | "aec", "mivecc/mivecc-v0")`` (and ``mivecc/mivecc_edges-v0``)
@@ -11,6 +12,7 @@
 
 from __future__ import annotations
 
+from mivecc_env.batched import BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import ConfigError, MiVeCCConfig
 from mivecc_env.edge_view import MiVeCCEdgesParallelEnv
 from mivecc_env.metrics import episode_summary, upper_bound_velocity_mps
@@ -22,6 +24,8 @@ ENV_VERSION = "mivecc_v0"
 __all__ = [
     "CLOUD_AGENT",
     "ENV_VERSION",
+    "BatchStep",
+    "BatchedMiVeCCEnv",
     "ConfigError",
     "MiVeCCConfig",
     "MiVeCCEdgesParallelEnv",
@@ -43,6 +47,7 @@ def register_gymnasium() -> None:
         gymnasium.register(
             id="mivecc/MiVeCCEdge-v0",
             entry_point="mivecc_env.single_agent:MiVeCCEdgeEnv",
+            vector_entry_point="mivecc_env.single_agent:MiVeCCEdgeVectorEnv",
             max_episode_steps=None,
         )
 

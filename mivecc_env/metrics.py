@@ -73,38 +73,50 @@ def upper_bound_velocity_mps(config: MiVeCCConfig) -> float:
     return float(np.mean(lengths / min_travel_time_s(config, lengths)))
 
 
-def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
-    """Metrics of environment ``env`` of a simulator since its last reset."""
-    exited = int(sim.exited[env])
-    n = max(exited, 1)
-    sim_time = sim.time_s
+def batch_summary(sim: Simulator) -> dict[str, np.ndarray]:
+    """Metrics of every environment of a simulator since its own last reset.
+
+    Returns:
+        ``SUMMARY_KEYS`` -> (B,) float64 arrays (environment ``b`` at index ``b``).
+    """
+    exited = sim.exited.astype(np.float64)
+    has = sim.exited > 0
+    n = np.maximum(exited, 1.0)
+    sim_time = sim.env_time_s
+
+    def per_exit(total: np.ndarray) -> np.ndarray:
+        return np.where(has, total / n, 0.0)
+
     return {
-        "avg_travel_velocity_mps": float(sim.sum_travel_velocity[env] / n) if exited else 0.0,
-        "avg_travel_velocity_no_wait_mps": (
-            float(sim.sum_travel_velocity_no_wait[env] / n) if exited else 0.0
+        "avg_travel_velocity_mps": per_exit(sim.sum_travel_velocity),
+        "avg_travel_velocity_no_wait_mps": per_exit(sim.sum_travel_velocity_no_wait),
+        "upper_bound_mps": np.full(sim.batch_size, upper_bound_velocity_mps(sim.config)),
+        "mean_speed_mps": sim.sum_speed_samples / np.maximum(sim.vehicle_steps, 1),
+        "throughput": exited,
+        "throughput_vph": np.where(
+            sim_time > 0, exited * 3600.0 / np.where(sim_time > 0, sim_time, 1.0), 0.0
         ),
-        "upper_bound_mps": upper_bound_velocity_mps(sim.config),
-        "mean_speed_mps": float(
-            sim.sum_speed_samples[env] / max(int(sim.vehicle_steps[env]), 1)
-        ),
-        "throughput": float(exited),
-        "throughput_vph": float(exited * 3600.0 / sim_time) if sim_time > 0 else 0.0,
-        "collisions": float(sim.collision_events[env]),
-        "collided_vehicles": float(sim.collided[env]),
-        "backlog": float(sim.queued[env]),
-        "in_network": float(sim.in_network[env]),
-        "arrived": float(sim.arrived[env]),
-        "mean_trip_time_s": float(sim.sum_trip_time[env] / n) if exited else 0.0,
-        "mean_wait_time_s": float(sim.sum_wait_time[env] / n) if exited else 0.0,
-        "sim_time_s": float(sim_time),
-        **{key: float(value[env]) for key, value in released_and_near_miss(sim).items()},
+        "collisions": sim.collision_events.astype(np.float64),
+        "collided_vehicles": sim.collided.astype(np.float64),
+        "backlog": sim.queued.astype(np.float64),
+        "in_network": sim.in_network.astype(np.float64),
+        "arrived": sim.arrived.astype(np.float64),
+        "mean_trip_time_s": per_exit(sim.sum_trip_time),
+        "mean_wait_time_s": per_exit(sim.sum_wait_time),
+        "sim_time_s": sim_time.astype(np.float64),
+        **released_and_near_miss(sim),
     }
+
+
+def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
+    """Metrics of environment ``env`` of a simulator since its last reset (floats)."""
+    return {key: float(value[env]) for key, value in batch_summary(sim).items()}
 
 
 def released_and_near_miss(sim: Simulator) -> dict[str, np.ndarray]:
     """The released-style velocity and near-miss keys of every environment, (B,) float64."""
     return {
-        "released_velocity_mps": sim.passing.velocity_mps(),
+        "released_velocity_mps": np.asarray(sim.passing.velocity_mps(), dtype=np.float64),
         "released_passed": sim.passing.count.astype(np.float64),
         **sim.near_miss.batch_summary(),
     }

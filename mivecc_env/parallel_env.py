@@ -29,6 +29,16 @@ Rewards (named terms in ``infos[agent]``):
     by default those with a conflict point still ahead) and ``reward_collision`` over all
     collisions (``reward_sv`` is 0). The reward is the sum of the terms.
 
+Infos:
+    Every agent: ``mask`` and its reward terms. ``cloud_0`` (the whole-network node) also
+    carries the episode summary so far (:data:`mivecc_env.metrics.SUMMARY_KEYS`, floats), so the
+    summary is in the infos once per step, not once per agent; :meth:`MiVeCCParallelEnv.summary`
+    returns it too. The keys are the same at reset and every step.
+
+Implementation:
+    An adapter of :class:`mivecc_env.batched.BatchedMiVeCCEnv` at B = 1 (one code path for
+    observations and rewards); ``env.batched`` is that environment.
+
 Starting state:
     An empty network; vehicles arrive by a Poisson process per entry lane (floored at
     ``min_headway_s``) and wait in an entry queue until their lane's entry is clear.
@@ -60,16 +70,11 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from mivecc_env import metrics
+from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim.checks import check_seed
-from mivecc_env.sim.core import Simulator, StepEvents
-from mivecc_env.sim.state_graph import (
-    StateGraphs,
-    cloud_graphs,
-    cloud_population,
-    edge_graphs,
-)
-from mivecc_env.sim.virtual_lane import density_indicator
+from mivecc_env.sim.core import Simulator
+from mivecc_env.sim.state_graph import StateGraphs
 from mivecc_env.viewer import HumanViewer
 
 CLOUD_AGENT = "cloud_0"
@@ -122,7 +127,8 @@ class MiVeCCParallelEnv(ParallelEnv):
             )
         self.render_mode = render_mode
         self._viewer: HumanViewer | None = None
-        self.sim = Simulator(self.config, batch_size=1, seed=0)
+        # Every agent has an observation, so both graphs are built whatever the scheme.
+        self.batched = BatchedMiVeCCEnv(self.config, 1, observe={"edge", "cloud"})
         c = self.config
         n = c.n_intersections
         self.edge_agents = [edge_agent(i) for i in range(n)]
@@ -141,12 +147,22 @@ class MiVeCCParallelEnv(ParallelEnv):
         self.state_space = spaces.Box(-1.0, 1.0, (c.k_cloud, c.k_cloud, 3), dtype=np.float32)
         # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
         self._a_limit = c.a_max_mps2 + 1e-6
-        self._seed_rng = np.random.default_rng()
-        self._edge: StateGraphs | None = None
-        self._cloud: StateGraphs | None = None
-        self._v_view: np.ndarray = np.zeros(0)
+        self._last: BatchStep | None = None
 
     # ------------------------------------------------------------------------------------
+    @property
+    def sim(self) -> Simulator:
+        """The underlying simulator (batch size 1)."""
+        return self.batched.sim
+
+    @property
+    def _edge(self) -> StateGraphs | None:
+        return self.batched._edge
+
+    @property
+    def _cloud(self) -> StateGraphs | None:
+        return self.batched._cloud
+
     def observation_space(self, agent: str) -> spaces.Box:
         """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call)."""
         return self._obs_spaces[agent]
@@ -174,15 +190,12 @@ class MiVeCCParallelEnv(ParallelEnv):
             Observations and infos of every agent.
         """
         if seed is not None:
-            self._seed_rng = np.random.default_rng(check_seed(seed))
-        sim_seed = int(self._seed_rng.integers(0, 2**63 - 1))
-        self.sim.reset(sim_seed)
+            seed = check_seed(seed)
+        self._last = out = self.batched.reset(seed)
         self.agents = list(self.possible_agents)
-        self._observe()
-        zero = np.zeros(len(self.possible_agents))
         if self.render_mode == "human":
             self.render()
-        return self._observations(), self._infos(zero, zero, zero)
+        return self._observations(out), self._infos(out)
 
     def step(
         self, actions: dict[str, np.ndarray]
@@ -205,16 +218,15 @@ class MiVeCCParallelEnv(ParallelEnv):
         """
         if not self.agents:
             raise RuntimeError("step: call reset() first (or again after the episode ended)")
-        edge_cmd, cloud_cmd = self._commands(actions)
-        events = self.sim.step(edge_cmd, cloud_cmd)
-        self._observe()
-        r_sv, r_vel, r_col = self._reward_terms(events)
+        edge_cols, cloud_cols = self._columns(actions)
+        self._last = out = self.batched.step_commands(edge_cols, cloud_cols)
         agents = self.agents
-        rewards = dict(zip(agents, (r_sv + r_vel + r_col).tolist(), strict=True))
-        truncated = self.sim.step_count >= self.config.max_steps
+        rewards = dict(zip(agents, [*out.edge_reward[0].tolist(), float(out.cloud_reward[0])],
+                           strict=True))
+        truncated = bool(out.truncated[0])
         terminations = dict.fromkeys(agents, False)
         truncations = dict.fromkeys(agents, truncated)
-        obs, infos = self._observations(), self._infos(r_sv, r_vel, r_col)
+        obs, infos = self._observations(out), self._infos(out)
         if truncated:
             self.agents = []
         if self.render_mode == "human":
@@ -222,8 +234,11 @@ class MiVeCCParallelEnv(ParallelEnv):
         return obs, rewards, terminations, truncations, infos
 
     # ------------------------------------------------------------------------------------
-    def _commands(self, actions: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-        """Per-slot edge and cloud commands (NaN where none) from the agents' actions."""
+    def _columns(
+        self, actions: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Validated per-column actions: ``(1, n_edge, K_edge)`` (NaN rows for the edge agents
+        left out) and ``(1, K_cloud)``, each ``None`` when no such agent acts."""
         if not isinstance(actions, Mapping):
             raise ValueError(
                 f"actions: expected a dict agent -> (K,) array, got {type(actions).__name__}"
@@ -233,20 +248,26 @@ class MiVeCCParallelEnv(ParallelEnv):
             raise ValueError(
                 f"actions: unknown agents {unknown}; agents are {self.possible_agents}"
             )
-        shape = self.sim.active.shape
-        edge_cmd = np.full(shape, np.nan)
-        cloud_cmd = np.full(shape, np.nan)
+        edge_cols = cloud_cols = None
         edges = [a for a in actions if a != CLOUD_AGENT]
         if edges:
             acts = self._checked_batch(edges, actions)
-            slots = self._edge.slot[0][[self._edge_index[a] for a in edges]]
-            real = slots >= 0
-            edge_cmd.ravel()[slots[real]] = acts[real]
+            if len(edges) == len(self.edge_agents) and edges == self.edge_agents:
+                edge_cols = acts[None]
+            else:
+                edge_cols = np.full((1, len(self.edge_agents), self.config.k_edge), np.nan)
+                edge_cols[0, [self._edge_index[a] for a in edges]] = acts
         if CLOUD_AGENT in actions:
-            act = self._check_action(CLOUD_AGENT, actions[CLOUD_AGENT])
-            slots = self._cloud.slot[0, 0]
-            real = slots >= 0
-            cloud_cmd.ravel()[slots[real]] = act[real]
+            cloud_cols = self._check_action(CLOUD_AGENT, actions[CLOUD_AGENT])[None]
+        return edge_cols, cloud_cols
+
+    def _commands(self, actions: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """Per-slot edge and cloud commands (NaN where none) from the agents' actions."""
+        edge_cols, cloud_cols = self._columns(actions)
+        nan = np.full(self.sim.active.shape, np.nan)
+        edge_cmd = nan if edge_cols is None else self.batched._commands(self._edge, edge_cols)
+        cloud_cmd = (nan.copy() if cloud_cols is None
+                     else self.batched._commands(self._cloud, cloud_cols[:, None, :]))
         return edge_cmd, cloud_cmd
 
     def _checked_batch(self, agents: list[str], actions: Mapping[str, Any]) -> np.ndarray:
@@ -290,83 +311,31 @@ class MiVeCCParallelEnv(ParallelEnv):
             "(clip exploration noise to the action box)"
         )
 
-    def _observe(self) -> None:
-        """Build the state graphs of the current simulator state."""
-        sim, c = self.sim, self.config
-        view = sim.view
-        v = sim.v.ravel()[view.vehicle]
-        a = sim.a.ravel()[view.vehicle]
-        self._area = sim.network.control_area(view.lane, view.s)  # also used by the rewards
-        self._edge = edge_graphs(sim.network, view, sim.safety.sv, v, a, 1, c, self._area)
-        di = density_indicator(view, c.di_n)
-        # The cloud picks and is rewarded over one population (cloud_pick_population).
-        self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population)
-        self._cloud = cloud_graphs(sim.network, view, di, v, a, 1, c, self._cloud_pop)
-        self._v_view = v
-
-    def _observations(self) -> dict[str, np.ndarray]:
+    def _observations(self, out: BatchStep) -> dict[str, np.ndarray]:
         """Observation of every live agent (views of the freshly built state graphs)."""
         if not self.agents:
             return {}
-        return dict(
-            zip(self.possible_agents, [*self._edge.obs[0], self._cloud.obs[0, 0]], strict=True)
-        )
+        return dict(zip(self.possible_agents, [*out.edge_obs[0], out.cloud_obs[0]], strict=True))
 
-    def _reward_terms(self, events: StepEvents) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """SV, velocity and collision reward terms, arrays in ``possible_agents`` order."""
-        c, sim = self.config, self.sim
-        n_int = c.n_intersections
-        area = self._area
-        inside = area >= 0
-        dv = self._v_view - c.reward_v_ref_mps
-        area_in = area[inside]
-        count = np.bincount(area_in, minlength=n_int)
-        vel_sum = np.bincount(area_in, dv[inside], minlength=n_int)
-        # Column -1 (padding) picks the appended 0, so padded columns add nothing.
-        sv_sum = np.append(sim.safety.sv, 0.0)[self._edge.view_index[0]].sum(axis=1)
-        n_dec = (self._edge.view_index[0] >= 0).sum(axis=1)
-        hit_area = events.collided_area[events.collided_area >= 0]
-        hits = np.bincount(hit_area, minlength=n_int)
-
-        # Empty areas have zero sums, so dividing by max(count, 1) gives their 0.
-        r_sv = np.zeros(n_int + 1)
-        r_vel = np.empty(n_int + 1)
-        r_col = np.empty(n_int + 1)
-        r_sv[:n_int] = c.reward_sv_weight * (sv_sum / np.maximum(n_dec, 1))
-        r_vel[:n_int] = vel_sum / np.maximum(count, 1)
-        dv_cloud = dv[self._cloud_pop]
-        r_vel[n_int] = dv_cloud.mean() if dv_cloud.size else 0.0
-        r_col[:n_int] = -c.collision_penalty * hits
-        r_col[n_int] = -c.collision_penalty * float(events.collided_vehicles[0])
-        return r_sv, r_vel, r_col
-
-    def _infos(self, r_sv: np.ndarray, r_vel: np.ndarray, r_col: np.ndarray) -> dict[str, dict]:
-        """Per-agent infos: ``mask``, the reward terms and the episode summary.
+    def _infos(self, out: BatchStep) -> dict[str, dict]:
+        """Per-agent infos: ``mask`` and the reward terms; ``cloud_0`` adds the summary.
 
         The set of keys is the same at reset and every step (TorchRL's wrapper needs that),
         and every value is numeric.
         """
         if not self.agents:
             return {}
-        summary = self.summary()
-        masks = [*self._edge.mask[0], self._cloud.mask[0, 0]]
-        return {
-            agent: {
-                "mask": mask,
-                "reward_sv": sv,
-                "reward_velocity": vel,
-                "reward_collision": col,
-                **summary,
-            }
-            for agent, mask, sv, vel, col in zip(
-                self.possible_agents,
-                masks,
-                r_sv.tolist(),
-                r_vel.tolist(),
-                r_col.tolist(),
-                strict=True,
-            )
+        edge_terms = [out.edge_terms[k][0].tolist() for k in REWARD_TERMS]
+        infos: dict[str, dict] = {
+            agent: dict(zip(("mask", *REWARD_TERMS), values, strict=True))
+            for agent, *values in zip(self.edge_agents, out.edge_mask[0], *edge_terms,
+                                      strict=True)
         }
+        cloud = {"mask": out.cloud_mask[0]}
+        cloud.update({k: float(out.cloud_terms[k][0]) for k in REWARD_TERMS})
+        cloud.update(self.summary())
+        infos[CLOUD_AGENT] = cloud
+        return infos
 
     # ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, float]:
@@ -395,6 +364,6 @@ class MiVeCCParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         """Global state: the cloud node's state graph (float32, (K_cloud, K_cloud, 3))."""
-        if self._cloud is None:
+        if self._last is None:
             raise RuntimeError("state: call reset() first")
-        return self._cloud.obs[0, 0].copy()
+        return self._last.cloud_obs[0].copy()

@@ -298,7 +298,8 @@ def save_heatmaps(
     ny, nx = velocity.shape
     extent = (0.0, nx * cell_m, 0.0, ny * cell_m)
     n_veh = int(sim.active[env].sum())
-    info = f"t = {sim.time_s:.1f} s, {n_veh} vehicles in network, {cell_m:g} m cells"
+    t_s = float(sim.env_time_s[env])
+    info = f"t = {t_s:.1f} s, {n_veh} vehicles in network, {cell_m:g} m cells"
     full_title = f"{title}\n{info}" if title else info
 
     velocity_cmap = matplotlib.colormaps["RdYlGn"].with_extremes(bad=EMPTY_CELL_COLOR)

@@ -1,8 +1,14 @@
 """Poisson arrivals per entry lane, with a headway floor, and the entry queues.
 
 Each (environment, lane) pair owns its own ``numpy.random.Generator`` (spawned from the
-environment's seed), so the arrival stream of a lane depends only on the seed, never on the
-batch size or on what the vehicles do: two schemes run with the same seed see the same demand.
+environment's seed), so the arrival stream of a lane depends only on the seed and on the
+environment's rate, never on the batch size, on the other environments or on what the vehicles
+do: two schemes run with the same seed see the same demand. A generator yields the same numbers
+whatever the chunk size it is asked for, so the ring buffer below is invisible in the stream.
+
+Each environment has its own rate (one batch can mix demands) and its own clock: ``advance``
+takes one time per environment, and :meth:`ArrivalProcess.reset_at` restarts the streams of
+some environments (time 0 for them) while the others continue untouched.
 
 Arrival times are drawn ahead in chunks into a ring buffer. The entry queue of a lane is the
 stretch of that buffer between the vehicles that have entered and those that have arrived, so
@@ -14,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 CHUNK = 32
 
@@ -25,32 +31,57 @@ class ArrivalProcess:
     Args:
         batch: number of environments B.
         n_lanes: number of entry lanes (one per through lane).
-        rate_vph: arrival rate per lane [vehicles/hour].
+        rate_vph: arrival rate per lane [vehicles/hour], one value or one per environment.
         min_headway_s: floor of the gap between consecutive arrivals [s].
     """
 
-    def __init__(self, batch: int, n_lanes: int, rate_vph: float, min_headway_s: float) -> None:
+    def __init__(
+        self, batch: int, n_lanes: int, rate_vph: float | ArrayLike, min_headway_s: float
+    ) -> None:
         self.batch, self.n_lanes = batch, n_lanes
-        self.mean_gap_s = 3600.0 / rate_vph
         self.min_headway_s = min_headway_s
-        self._rngs: list[list[np.random.Generator]] = []
-        self.reset([0] * batch)
-
-    def reset(self, seeds: Sequence[int | np.random.SeedSequence]) -> None:
-        """Restart every lane's stream from per-environment seeds."""
-        if len(seeds) != self.batch:
-            raise ValueError(f"seeds: need {self.batch} seeds, got {len(seeds)}")
-        self._rngs = []
-        for seed in seeds:
-            seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
-            self._rngs.append([np.random.default_rng(c) for c in seq.spawn(self.n_lanes)])
-        shape = (self.batch, self.n_lanes)
+        self.set_rates(rate_vph)
+        shape = (batch, n_lanes)
+        self._rngs: list[list[np.random.Generator]] = [[] for _ in range(batch)]
         self.times = np.zeros((*shape, 4 * CHUNK))  # ring buffer of arrival times [s]
         self.generated = np.zeros(shape, dtype=np.int64)  # arrivals drawn so far
         self.arrived = np.zeros(shape, dtype=np.int64)  # arrivals with time <= now
         self.entered = np.zeros(shape, dtype=np.int64)  # vehicles that left the queue
         self._last = np.zeros(shape)  # time of the last drawn arrival [s]
-        for b in range(self.batch):
+        self.reset([0] * batch)
+
+    def set_rates(self, rate_vph: float | ArrayLike) -> None:
+        """Set the arrival rate [veh/lane/h] of every environment (applies to later draws)."""
+        rate = np.broadcast_to(np.asarray(rate_vph, dtype=np.float64), (self.batch,))
+        if not (np.isfinite(rate).all() and (rate > 0).all()):
+            raise ValueError(f"rate_vph: must be finite and > 0 veh/lane/h, got {rate!r}")
+        self.mean_gap_s = 3600.0 / rate  # (B,) [s]
+
+    def reset(self, seeds: Sequence[int | np.random.SeedSequence]) -> None:
+        """Restart every lane's stream from per-environment seeds."""
+        if len(seeds) != self.batch:
+            raise ValueError(f"seeds: need {self.batch} seeds, got {len(seeds)}")
+        self.times = np.zeros((self.batch, self.n_lanes, 4 * CHUNK))
+        self.reset_at(np.arange(self.batch), seeds)
+
+    def reset_at(
+        self, envs: ArrayLike, seeds: Sequence[int | np.random.SeedSequence]
+    ) -> None:
+        """Restart the streams of environments ``envs`` (time 0 for them) from ``seeds``.
+
+        Environment ``envs[i]`` then draws exactly what a fresh process seeded with
+        ``seeds[i]`` draws; the other environments are untouched.
+        """
+        envs = np.asarray(envs, dtype=np.int64).reshape(-1)
+        if len(seeds) != envs.size:
+            raise ValueError(f"seeds: need {envs.size} seeds, got {len(seeds)}")
+        for b, seed in zip(envs.tolist(), seeds, strict=True):
+            seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+            self._rngs[b] = [np.random.default_rng(c) for c in seq.spawn(self.n_lanes)]
+        for arr in (self.generated, self.arrived, self.entered, self._last):
+            arr[envs] = 0
+        self.times[envs] = 0.0
+        for b in envs.tolist():
             for lane in range(self.n_lanes):
                 self._draw(b, lane)
 
@@ -65,7 +96,7 @@ class ArrivalProcess:
         if self.generated[b, lane] + CHUNK - self.entered[b, lane] > cap:
             self._grow()
             cap = self.times.shape[2]
-        draws = self._rngs[b][lane].exponential(self.mean_gap_s, CHUNK)
+        draws = self._rngs[b][lane].exponential(self.mean_gap_s[b], CHUNK)
         gaps = np.maximum(draws, self.min_headway_s)
         times = self._last[b, lane] + np.cumsum(gaps)
         idx = (self.generated[b, lane] + np.arange(CHUNK)) % cap
@@ -74,26 +105,28 @@ class ArrivalProcess:
         self._last[b, lane] = times[-1]
 
     def _grow(self) -> None:
+        """Double the ring buffer, keeping every drawn, not yet entered arrival."""
         old = self.times
         cap = old.shape[2]
+        absolute = self.entered[..., None] + np.arange(cap)  # (B, n_lanes, cap)
+        keep = absolute < self.generated[..., None]
+        src = np.take_along_axis(old, absolute % cap, axis=2)
         new = np.zeros((*old.shape[:2], 2 * cap))
-        k = np.arange(cap)
-        for b in range(self.batch):
-            for lane in range(self.n_lanes):
-                first = self.entered[b, lane]
-                absolute = first + k
-                keep = absolute < self.generated[b, lane]
-                new[b, lane, absolute[keep] % (2 * cap)] = old[b, lane, absolute[keep] % cap]
+        np.put_along_axis(new, absolute % (2 * cap), np.where(keep, src, 0.0), axis=2)
         self.times = new
 
-    def advance(self, now_s: float) -> None:
-        """Move every arrival with time <= ``now_s`` into its entry queue."""
+    def advance(self, now_s: float | ArrayLike) -> None:
+        """Move every arrival with time <= ``now_s`` into its entry queue.
+
+        Args:
+            now_s: the time [s], one value or one per environment (each has its own clock).
+        """
+        now = np.asarray(now_s, dtype=np.float64)
+        now = now[:, None] if now.ndim == 1 else now
         while True:
             cap = self.times.shape[2]
-            nxt = np.take_along_axis(
-                self.times, (self.arrived % cap)[..., None], axis=2
-            )[..., 0]
-            due = nxt <= now_s
+            nxt = np.take_along_axis(self.times, (self.arrived % cap)[..., None], axis=2)[..., 0]
+            due = nxt <= now
             if not due.any():
                 return
             self.arrived += due

@@ -19,6 +19,8 @@ Accounting invariant, per environment, after every step:
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -73,6 +75,12 @@ class Simulator:
             the same seed) or one seed per environment (environment ``b`` replays a B = 1 run
             seeded with ``seed[b]``).
         capacity: initial vehicle slots per environment (grows on demand).
+        densities: arrival rate per entry lane of each environment [veh/lane/h] ((B,) values
+            in the config's ``density_vplh`` range); default: the config's ``density_vplh``.
+
+    Every environment has its own clock: :meth:`reset_at` restarts some environments at time 0
+    while the others go on (``env_steps`` / ``env_time_s``; ``step_count`` counts the steps
+    since the last full :meth:`reset`).
     """
 
     def __init__(
@@ -81,14 +89,16 @@ class Simulator:
         batch_size: int = 1,
         seed: int | Sequence[int] | None = None,
         capacity: int = 256,
+        densities: Sequence[float] | np.ndarray | None = None,
     ) -> None:
         batch_size = checks.check_positive_int("batch_size", batch_size)
         self.config = config
         self.network = GridNetwork.from_config(config)
         self.batch_size = batch_size
         self._initial_capacity = max(8, int(capacity))
+        self.densities = _checked_densities(config, batch_size, densities)
         self.arrivals = ArrivalProcess(
-            batch_size, self.network.n_lanes, config.density_vplh, config.min_headway_s
+            batch_size, self.network.n_lanes, self.densities, config.min_headway_s
         )
         self.reset(seed)
 
@@ -108,6 +118,7 @@ class Simulator:
         self.vid = np.full(shape, -1, dtype=np.int64)  # unique id per environment
         b = self.batch_size
         self.step_count = 0
+        self.start_step = np.zeros(b, dtype=np.int64)  # step_count at each env's last reset
         self.next_vid = np.zeros(b, dtype=np.int64)
         self.exited = np.zeros(b, dtype=np.int64)
         self.collided = np.zeros(b, dtype=np.int64)  # vehicles removed by collision
@@ -128,6 +139,39 @@ class Simulator:
                               if self.config.control == "signalized" else None)
         self._refresh_view()
 
+    def reset_at(self, env_index: Sequence[int] | np.ndarray, seeds: Sequence[int]) -> None:
+        """Restart environments ``env_index`` (empty, time 0) from one seed each.
+
+        Environment ``env_index[i]`` then runs exactly like a B = 1 simulator reset with
+        ``seeds[i]``; the other environments continue untouched.
+        """
+        envs = np.asarray(env_index, dtype=np.int64).reshape(-1)
+        if envs.size == 0:
+            return
+        if self.controller is not None:
+            raise NotImplementedError(
+                f"reset_at: not supported under control={self.config.control!r} (its plans "
+                "run on one clock for the whole batch); use reset()"
+            )
+        if len(seeds) != envs.size:
+            raise ValueError(f"seeds: need one seed per reset environment ({envs.size}), "
+                             f"got {len(seeds)}")
+        self.arrivals.reset_at(envs, [np.random.SeedSequence(int(x)).spawn(1)[0] for x in seeds])
+        self.active[envs] = False
+        self.vid[envs] = -1
+        self.start_step[envs] = self.step_count
+        for name in ("next_vid", "exited", "collided", "collision_events", "sum_travel_velocity",
+                     "sum_travel_velocity_no_wait", "sum_trip_time", "sum_wait_time",
+                     "sum_speed_samples", "vehicle_steps"):
+            getattr(self, name)[envs] = 0
+        self.passing.reset_at(envs)
+        self.near_miss.reset_at(envs)
+        if self.signal_phases is not None:  # back to the plan's state at time 0
+            fresh = SignalPhases(self.config, self.network, self.batch_size)
+            for name in ("phase", "stage", "elapsed", "gap_steps"):
+                getattr(self.signal_phases, name)[envs] = getattr(fresh, name)[envs]
+        self._refresh_view()
+
     def _seed_sequences(self, seed: int | Sequence[int] | None) -> list[np.random.SeedSequence]:
         seed = checks.check_seed(seed, self.batch_size)
         if seed is None or isinstance(seed, int):
@@ -143,8 +187,18 @@ class Simulator:
 
     @property
     def time_s(self) -> float:
-        """Simulated time [s]."""
+        """Simulated time since the last full :meth:`reset` [s]."""
         return self.step_count * self.config.dt_s
+
+    @property
+    def env_steps(self) -> IntArray:
+        """(B,) steps of each environment since its own last reset."""
+        return self.step_count - self.start_step
+
+    @property
+    def env_time_s(self) -> FloatArray:
+        """(B,) simulated time of each environment since its own last reset [s]."""
+        return self.env_steps * self.config.dt_s
 
     @property
     def capacity(self) -> int:
@@ -254,7 +308,7 @@ class Simulator:
         s_new, v_new, a_applied = end_node.bounded_motion(
             s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
         )
-        t0 = self.time_s
+        t0 = self.env_time_s  # (B,) each environment's own clock
         t1 = t0 + c.dt_s
         self.s.ravel()[flat] = s_new
         self.v.ravel()[flat] = v_new
@@ -298,14 +352,15 @@ class Simulator:
 
     def _record_exits(
         self, view: VirtualLaneView, out: NDArray[np.bool_], s_old: FloatArray,
-        s_new: FloatArray, length: FloatArray, t0: float, t1: float, events: StepEvents,
+        s_new: FloatArray, length: FloatArray, t0: FloatArray, t1: FloatArray,
+        events: StepEvents,
     ) -> None:
         idx = np.flatnonzero(out)
         flat = view.vehicle[idx]
         env = view.env[idx]
         # Exit time interpolated within the step.
         frac = (length[idx] - s_old[idx]) / np.maximum(s_new[idx] - s_old[idx], 1e-12)
-        t_exit = t0 + np.clip(frac, 0.0, 1.0) * (t1 - t0)
+        t_exit = t0[env] + np.clip(frac, 0.0, 1.0) * (t1[env] - t0[env])
         t_arr, t_ent = self.t_arrive.ravel()[flat], self.t_enter.ravel()[flat]
         trip, trip_no_wait = t_exit - t_arr, t_exit - t_ent
         b = self.batch_size
@@ -339,7 +394,7 @@ class Simulator:
         events.collided_area = self.network.control_area(view.lane[hit], s_new[hit])
         self.active.ravel()[view.vehicle[hit]] = False
 
-    def _enter_vehicles(self, now_s: float, events: StepEvents) -> None:
+    def _enter_vehicles(self, now_s: FloatArray, events: StepEvents) -> None:
         c = self.config
         self.arrivals.advance(now_s)
         want = self.arrivals.queued > 0
@@ -376,7 +431,7 @@ class Simulator:
         self.v[env, slot] = c.v_init_mps
         self.a[env, slot] = 0.0
         self.t_arrive[env, slot] = t_arr
-        self.t_enter[env, slot] = now_s
+        self.t_enter[env, slot] = now_s[env]
         self.vid[env, slot] = self.next_vid[env] + ordinal
         self.next_vid += n_new
         self.arrivals.pop(go)
@@ -399,6 +454,27 @@ class Simulator:
             "vid": self.vid[env, m], "lane": lane, "s": s, "v": self.v[env, m],
             "a": self.a[env, m], "xy": self.network.xy(lane, s),
         }
+
+
+def _checked_densities(
+    config: MiVeCCConfig, batch: int, densities: Sequence[float] | np.ndarray | None
+) -> FloatArray:
+    """(B,) per-environment demand [veh/lane/h], validated against ``density_vplh``'s range."""
+    if densities is None:
+        return np.full(batch, float(config.density_vplh))
+    try:
+        d = np.asarray(densities, dtype=np.float64)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"densities: expected {batch} numbers [veh/lane/h]") from err
+    if d.shape != (batch,):
+        raise ValueError(f"densities: expected shape ({batch},) (one per environment), "
+                         f"got {d.shape}")
+    rng = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}["density_vplh"].metadata["range"]
+    bad = [i for i, x in enumerate(d.tolist()) if not (math.isfinite(x) and rng.contains(x))]
+    if bad:
+        raise ValueError(f"densities: each must be {rng.describe()} veh/lane/h, "
+                         f"got {d[bad].tolist()} at index {bad}")
+    return d
 
 
 def collision_pairs(

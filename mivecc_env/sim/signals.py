@@ -28,16 +28,20 @@ FloatArray = NDArray[np.float64]
 GREEN, YELLOW, RED = 0, 1, 2
 
 
-def phase_states(config: MiVeCCConfig, time_s: float) -> NDArray[np.int64]:
-    """(n_intersections, 2) head state of the (east-west, north-south) approaches."""
+def phase_states(config: MiVeCCConfig, time_s: float | FloatArray) -> NDArray[np.int64]:
+    """(n_intersections, 2) head state of the (east-west, north-south) approaches.
+
+    ``time_s`` may be an array of clocks (one per environment): the result is then
+    ``(*time_s.shape, n_intersections, 2)``.
+    """
     g, y, r = config.signal_green_s, config.signal_yellow_s, config.signal_all_red_s
     half = g + y + r
     rows, cols = np.divmod(np.arange(config.n_intersections), config.cols)
-    t = (time_s - config.signal_offset_s * (rows + cols)) % (2 * half)
-    states = np.full((config.n_intersections, 2), RED, dtype=np.int64)
+    t = (np.asarray(time_s)[..., None] - config.signal_offset_s * (rows + cols)) % (2 * half)
+    states = np.full((*t.shape, 2), RED, dtype=np.int64)
     for phase in (0, 1):
         local = t - phase * half
-        states[:, phase] = np.where(
+        states[..., phase] = np.where(
             (local >= 0) & (local < g), GREEN,
             np.where((local >= g) & (local < g + y), YELLOW, RED),
         )

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import graph_kernel
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.virtual_lane import VirtualLaneView
 
@@ -93,10 +94,15 @@ def select_edge_decisions(
     """
     if area is None:
         area = network.control_area(view.lane, view.s)
+    if graph_kernel.HAVE_NUMBA:
+        group = np.where(area >= 0, view.env * network.n_intersections + area, -1)
+        n_groups = (int(view.env.max()) + 1) * network.n_intersections if view.env.size else 0
+        return graph_kernel.select_per_group(group, sv, n_groups, k)
     inside = np.flatnonzero(area >= 0)
     node = view.env[inside] * network.n_intersections + area[inside]
-    span = config.sv_max - config.sv_min + 1.0
-    order = np.argsort(node * span + (sv[inside] - config.sv_min), kind="stable")
+    # Exact two-key sort (node, then SV; ties keep view order): a float composite key such as
+    # ``node * span + sv`` rounds SV differences away once ``node`` is large.
+    order = np.lexsort((sv[inside], node))
     chosen, node = inside[order], node[order]
     column = _rank_in_groups(node)
     keep = column < k
@@ -139,14 +145,18 @@ def select_cloud_decisions(
     Args:
         eligible: (n,) the vehicles that may be picked (:func:`cloud_population`); all if None.
     """
+    if graph_kernel.HAVE_NUMBA:
+        n_groups = int(view.env.max()) + 1 if view.env.size else 0
+        group = view.env if eligible is None else np.where(eligible, view.env, -1)
+        return graph_kernel.select_per_group(group, -np.minimum(di, di_max), n_groups, k)
     if eligible is not None:
         # Select among the eligible vehicles only (the selection reads ``view.env``).
         cand = np.flatnonzero(eligible)
         sub = dataclasses.replace(view, env=view.env[cand])
         chosen, env, column = select_cloud_decisions(sub, di[cand], k, di_max)
         return cand[chosen], env, column
-    span = di_max + 1.0
-    order = np.argsort(view.env * span + (di_max - np.minimum(di, di_max)), kind="stable")
+    # Exact two-key sort (env, then DI descending; ties keep view order), see above.
+    order = np.lexsort((-np.minimum(di, di_max), view.env))
     env = view.env[order]
     column = _rank_in_groups(env)
     keep = column < k
@@ -168,6 +178,7 @@ def build_graphs(
     config: MiVeCCConfig,
     area_centre_s: FloatArray | None = None,
     area_radius_m: float = np.inf,
+    use_kernel: bool | None = None,
 ) -> StateGraphs:
     """Fill the K x K x 3 graphs of the given decisions.
 
@@ -177,63 +188,86 @@ def build_graphs(
             ``env * n_nodes + node_in_env``).
         area_centre_s: (len(decision),) centre of each decision's area on its lane [m];
             references outside ``area_radius_m`` of it are ignored (edge nodes).
+        use_kernel: fill the reference rows with the compiled kernel
+            (:mod:`mivecc_env.sim.graph_kernel`, bit-identical) or the numpy path; default:
+            the kernel when numba is available.
     """
-    # Built column-major (node, column, row, channel) so a column is one contiguous block.
-    obs_t = np.zeros((batch * n_nodes, k, k, 3), dtype=np.float32)
-    mask = np.zeros((batch * n_nodes, k), dtype=np.float32)
-    slot = np.full((batch * n_nodes, k), -1, dtype=np.int64)
-    view_index = np.full((batch * n_nodes, k), -1, dtype=np.int64)
+    n_rows = batch * n_nodes
+    obs = np.zeros((n_rows, k, k, 3), dtype=np.float32)  # (node, row, column, channel)
+    mask = np.zeros((n_rows, k), dtype=np.float32)
+    slot = np.full((n_rows, k), -1, dtype=np.int64)
+    view_index = np.full((n_rows, k), -1, dtype=np.int64)
     shape = (batch, n_nodes, k)
 
     def finish() -> StateGraphs:
-        obs = np.ascontiguousarray(obs_t.transpose(0, 2, 1, 3)).reshape(*shape, k, 3)
-        return StateGraphs(obs, mask.reshape(shape), slot.reshape(shape),
+        return StateGraphs(obs.reshape(*shape, k, 3), mask.reshape(shape), slot.reshape(shape),
                            view_index.reshape(shape))
 
     if decision.size == 0:
         return finish()
 
     v_lo = config.velocity_floor_mps
-    v_norm = _unit_clip((velocity - v_lo) * (2.0 / (config.v_max_mps - v_lo)) - 1.0)
-    v_norm = v_norm.astype(np.float32)
-    a_norm = _unit_clip(accel * (1.0 / accel_scale_mps2(config))).astype(np.float32)
     inv_scale = 1.0 / position_scale_m
 
     s_d = view.s[decision]
     to_stop = s_d - network.next_stop_s(view.lane[decision], s_d)
-    head = obs_t[node, column, 0]  # (D, 3) copy, written back below
-    head[:, 0] = _unit_clip(to_stop * inv_scale)
-    head[:, 1] = v_norm[decision]
-    head[:, 2] = a_norm[decision]
-    obs_t[node, column, 0] = head
+    n_veh = velocity.size
+    # Channels velocity and acceleration of every view vehicle, plus a zero row for padding.
+    va = np.zeros((n_veh + 1, 2), dtype=np.float32)
+    va[:n_veh, 0] = _unit_clip((velocity - v_lo) * (2.0 / (config.v_max_mps - v_lo)) - 1.0)
+    va[:n_veh, 1] = _unit_clip(accel * (1.0 / accel_scale_mps2(config)))
+    # obs viewed as (node * K * K, 3): cell (node, row, column) is row (node*K + row)*K + column
+    cells = obs.reshape(-1, 3)
+    head_cell = node * (k * k) + column
+    cells[head_cell, 0] = _unit_clip(to_stop * inv_scale)
+    cells[head_cell, 1:] = va[decision]
 
-    # Reference candidates: the K-1 points on either side on the sorted virtual lane.
+    # Reference candidates: up to K-1 points on either side on the sorted virtual lane, in
+    # point order, clipped to the lane's run (a window as wide as the widest row needs, not
+    # 2 (K-1) wide); the decision's own point is not a candidate.
     p = view.own_point[decision]
-    offsets = np.concatenate([np.arange(-(k - 1), 0), np.arange(1, k)])
-    cand = p[:, None] + offsets[None, :]
-    valid = (cand >= view.point_run_start[p][:, None]) & (cand < view.point_run_end[p][:, None])
-    np.minimum(np.maximum(cand, 0, out=cand), view.point_pos.size - 1, out=cand)
+    lo = np.maximum(view.point_run_start[p], p - (k - 1))
+    hi = np.minimum(view.point_run_end[p], p + k)  # exclusive
+    if use_kernel is None:
+        use_kernel = graph_kernel.HAVE_NUMBA
+    if use_kernel:
+        graph_kernel.fill_references(cells, head_cell, k, p, s_d, lo, hi, view.point_pos,
+                                     view.point_vehicle, va, area_centre_s, area_radius_m,
+                                     inv_scale)
+        return _finish_masks(finish(), node, column, view, decision)
+    width = int((hi - lo).max())
+    cand = lo[:, None] + np.arange(width)
+    valid = (cand < hi[:, None]) & (cand != p[:, None])
+    np.minimum(cand, view.point_pos.size - 1, out=cand)
     pos = view.point_pos[cand]
     if area_centre_s is not None:
         valid &= np.abs(pos - area_centre_s[:, None]) <= area_radius_m
     rel = pos - s_d[:, None]
     dist = np.where(valid, np.abs(rel), np.inf)
+    # Nearest first; ties keep point order (the two halves are sorted runs: cheap to sort).
     nearest = np.argsort(dist, axis=1, kind="stable")[:, : k - 1]
-    rows = np.arange(nearest.shape[0])[:, None]
-    real = dist[rows, nearest] < np.inf
-    chosen = cand[rows, nearest]
-    ref_vehicle = view.point_vehicle[chosen]
-    block = np.empty((*chosen.shape, 3), dtype=np.float32)
-    block[..., 0] = _unit_clip(rel[rows, nearest] * inv_scale)
-    block[..., 1] = v_norm[ref_vehicle]
-    block[..., 2] = a_norm[ref_vehicle]
-    block[~real] = 0.0
-    obs_t[node, column, 1:] = block
+    n_ref = nearest.shape[1]
+    pick = nearest + (np.arange(decision.size) * width)[:, None]  # flat index into (D, width)
+    real = valid.ravel()[pick]
+    ref_vehicle = np.where(real, view.point_vehicle[cand.ravel()[pick]], n_veh)
+    block = np.empty((decision.size, n_ref, 3), dtype=np.float32)
+    block[..., 0] = np.where(real, _unit_clip(rel.ravel()[pick] * inv_scale), 0.0)
+    block[..., 1:] = va[ref_vehicle]
+    ref_cell = head_cell[:, None] + np.arange(1, n_ref + 1) * k
+    cells[ref_cell] = block
 
-    mask[node, column] = 1.0
-    slot[node, column] = view.vehicle[decision]
-    view_index[node, column] = decision
-    return finish()
+    return _finish_masks(finish(), node, column, view, decision)
+
+
+def _finish_masks(graphs: StateGraphs, node: IntArray, column: IntArray, view: VirtualLaneView,
+                  decision: IntArray) -> StateGraphs:
+    """Mark each decision's column in ``mask``, ``slot`` and ``view_index``."""
+    n_nodes_k = graphs.mask.shape[-1]
+    flat = node * n_nodes_k + column
+    graphs.mask.reshape(-1)[flat] = 1.0
+    graphs.slot.reshape(-1)[flat] = view.vehicle[decision]
+    graphs.view_index.reshape(-1)[flat] = decision
+    return graphs
 
 
 def edge_graphs(

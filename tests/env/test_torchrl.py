@@ -56,8 +56,11 @@ def test_specs() -> None:
     assert obs["edge", "observation"].dtype == torch.float32
     assert obs["edge", "info", "mask"].shape == (N_EDGE, 15)
     assert obs["cloud", "info", "mask"].shape == (1, 60)
-    for key in (*TERMS, *SUMMARY_KEYS):
+    for key in TERMS:
         assert obs["edge", "info", key].shape == (N_EDGE,)
+    for key in (*TERMS, *SUMMARY_KEYS):
+        assert obs["cloud", "info", key].shape == (1,)
+    assert not set(SUMMARY_KEYS) & set(obs["edge", "info"].keys())
     act = env.full_action_spec
     assert act["edge", "action"].shape == (N_EDGE, 15)
     assert act["cloud", "action"].shape == (1, 60)
@@ -110,7 +113,7 @@ def test_truncation_and_auto_reset() -> None:
     ]
     assert td["next", "edge", "truncated"].squeeze(-1)[3].all()
     assert not td["next", "edge", "terminated"].any()
-    sim_time = td["next", "edge", "info", "sim_time_s"][:, 0]
+    sim_time = td["next", "cloud", "info", "sim_time_s"][:, 0]
     torch.testing.assert_close(sim_time[:5], torch.tensor([0.1, 0.2, 0.3, 0.4, 0.1]))
 
 

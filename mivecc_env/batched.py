@@ -1,0 +1,410 @@
+"""B MiVeCC environments in one simulator: arrays with a leading batch axis, no agent dicts.
+
+:class:`BatchedMiVeCCEnv` is the one code path for observations and rewards: the PettingZoo
+``ParallelEnv`` / AEC envs are adapters of it at B = 1, the gymnasium vector env and the native
+TorchRL env (``mivecc_agents``) use it at any B. It needs numpy only.
+
+Semantics (details in ``docs/batched.md``):
+
+* Environment ``b`` of a batch is bit-identical to a B = 1 run with the same seed and demand
+  (observations, masks, rewards, summaries), whatever the other environments do.
+* Seeds: every environment owns a seed generator. ``reset(seed=s)`` with an int seeds
+  environment ``b`` with ``s + b`` (so B = 1 with seed ``s`` is :class:`MiVeCCParallelEnv`
+  reset with ``seed=s``); a sequence gives one seed per environment; ``None`` continues every
+  environment's own sequence. Each episode of environment ``b`` draws its simulator seed from
+  that generator, exactly like the ParallelEnv does.
+* Partial reset: :meth:`reset_at` restarts some environments (their next seed, or given seeds)
+  while the others continue untouched; each environment has its own episode clock.
+* An environment is truncated once its clock reaches ``max_steps``; it keeps running (and stays
+  truncated) until it is reset with :meth:`reset_at`. It is never terminated.
+* Demand: ``densities`` gives each environment its own arrival rate [veh/lane/h].
+* Observations are built only for the graphs in ``observe``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from mivecc_env import metrics
+from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
+from mivecc_env.sim.core import Simulator, StepEvents
+from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
+from mivecc_env.sim.virtual_lane import density_indicator
+
+#: Names of the reward terms (the reward of a node is their sum).
+REWARD_TERMS: tuple[str, ...] = ("reward_sv", "reward_velocity", "reward_collision")
+GRAPHS = frozenset({"edge", "cloud"})
+_SEED_HIGH = 2**63 - 1
+
+FloatArray = NDArray[np.float64]
+Float32Array = NDArray[np.float32]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class BatchStep:
+    """What :meth:`BatchedMiVeCCEnv.step` / ``reset`` / ``reset_at`` return (fresh arrays).
+
+    Attributes:
+        edge_obs: (B, n_edge, K_edge, K_edge, 3) float32 edge state graphs, ``None`` unless
+            ``"edge"`` is observed.
+        edge_mask: (B, n_edge, K_edge) float32, 1 for a real decision vehicle (or ``None``).
+        cloud_obs: (B, K_cloud, K_cloud, 3) float32 cloud state graph (or ``None``).
+        cloud_mask: (B, K_cloud) float32 (or ``None``).
+        edge_reward: (B, n_edge) float64, the sum of ``edge_terms``.
+        cloud_reward: (B,) float64, the sum of ``cloud_terms``.
+        edge_terms / cloud_terms: ``REWARD_TERMS`` -> (B, n_edge) / (B,) float64 (the edge
+            ``reward_sv`` is 0 unless ``"edge"`` is observed: it needs the decision vehicles).
+        terminated: (B,) bool (always False: continuous flow).
+        truncated: (B,) bool, the environment's clock reached ``max_steps``.
+        episode_steps: (B,) int64, steps of each environment since its own reset.
+    """
+
+    edge_obs: Float32Array | None
+    edge_mask: Float32Array | None
+    cloud_obs: Float32Array | None
+    cloud_mask: Float32Array | None
+    edge_reward: FloatArray
+    cloud_reward: FloatArray
+    edge_terms: dict[str, FloatArray]
+    cloud_terms: dict[str, FloatArray]
+    terminated: BoolArray
+    truncated: BoolArray
+    episode_steps: NDArray[np.int64]
+
+    @property
+    def done(self) -> BoolArray:
+        """(B,) ``terminated | truncated``."""
+        return self.terminated | self.truncated
+
+
+class BatchedMiVeCCEnv:
+    """B independent MiVeCC environments stepped together (see the module docstring).
+
+    Args:
+        config: a :class:`MiVeCCConfig`; keyword ``config_overrides`` replace its fields
+            (``density`` is accepted for ``density_vplh``).
+        batch_size: number of environments B >= 1.
+        densities: (B,) demand of each environment [veh/lane/h] (default: the config's
+            ``density_vplh`` for all).
+        observe: which state graphs to build, a subset of ``{"edge", "cloud"}``; default by
+            scheme: ``E``/``EE`` -> ``{"edge"}``, ``EEC`` -> ``{"edge", "cloud"}``.
+
+    Raises:
+        ConfigError: a bad config field, ``batch_size``, ``densities`` or ``observe``.
+    """
+
+    def __init__(
+        self,
+        config: MiVeCCConfig | None = None,
+        batch_size: int = 1,
+        *,
+        densities: Sequence[float] | ArrayLike | None = None,
+        observe: Sequence[str] | set[str] | frozenset[str] | None = None,
+        **config_overrides: Any,
+    ) -> None:
+        if config is not None and not isinstance(config, MiVeCCConfig):
+            raise ConfigError(f"config: must be a MiVeCCConfig, got {type(config).__name__}")
+        if isinstance(batch_size, bool) or not isinstance(batch_size, int | np.integer) or (
+            batch_size < 1
+        ):
+            raise ConfigError(f"batch_size: must be an integer >= 1, got {batch_size!r}")
+        self.config = c = from_overrides(config, **config_overrides)
+        self.batch_size = int(batch_size)
+        if observe is None:
+            observe = {"edge", "cloud"} if c.scheme == "EEC" else {"edge"}
+        if isinstance(observe, str) or not set(observe) <= GRAPHS:
+            raise ConfigError(f"observe: must be a subset of {sorted(GRAPHS)}, got {observe!r}")
+        self.observe = frozenset(observe)
+        try:
+            self.sim = Simulator(c, batch_size=self.batch_size, seed=0, densities=densities)
+        except ValueError as err:
+            raise ConfigError(str(err)) from err
+        self.n_edge = c.n_intersections
+        self.k_edge, self.k_cloud = c.k_edge, c.k_cloud
+        # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
+        self._a_limit = c.a_max_mps2 + 1e-6
+        self._seed_rngs = [np.random.default_rng() for _ in range(self.batch_size)]
+        self._edge: StateGraphs | None = None
+        self._cloud: StateGraphs | None = None
+        self._area = np.zeros(0, dtype=np.int64)
+        self._cloud_pop = np.zeros(0, dtype=bool)
+        self._v = np.zeros(0)
+        self._started = False
+        self._last: BatchStep | None = None
+
+    # ------------------------------------------------------------------------------------
+    @property
+    def densities(self) -> FloatArray:
+        """(B,) demand of each environment [veh/lane/h] (read-only view)."""
+        d = self.sim.densities.view()
+        d.flags.writeable = False
+        return d
+
+    @property
+    def episode_steps(self) -> NDArray[np.int64]:
+        """(B,) steps of each environment since its own last reset."""
+        return self.sim.env_steps
+
+    def summary(self) -> dict[str, FloatArray]:
+        """Episode metrics so far: ``metrics.SUMMARY_KEYS`` -> (B,) float64 arrays.
+
+        Read it before :meth:`reset_at` to keep the summary of an ended episode.
+        """
+        return metrics.batch_summary(self.sim)
+
+    # ------------------------------------------------------------------------------------
+    def reset(self, seed: int | Sequence[int] | None = None) -> BatchStep:
+        """Restart every environment.
+
+        Args:
+            seed: an int ``s`` seeds environment ``b`` with ``s + b``; a sequence of B ints
+                gives one seed per environment; ``None`` continues each environment's own
+                seed sequence (fresh entropy before the first seeded reset).
+        """
+        envs = np.arange(self.batch_size)
+        if seed is not None:
+            if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+                seeds = [int(seed) + b for b in range(self.batch_size)]
+            else:
+                seeds = self._seed_list(seed, self.batch_size, "seed")
+            self._seed_rngs = [np.random.default_rng(s) for s in seeds]
+        self.sim.reset([self._next_sim_seed(b) for b in envs.tolist()])
+        self._started = True
+        return self._observe_and_pack(None)
+
+    def reset_at(
+        self, env_index: ArrayLike, seed: int | Sequence[int] | None = None
+    ) -> BatchStep:
+        """Restart some environments; the others continue untouched.
+
+        Args:
+            env_index: indices of the environments to restart, or a (B,) bool mask.
+            seed: ``None``: each restarted environment takes the next seed of its own
+                sequence; an int (one environment) or one int per restarted environment:
+                reseeds their sequences (as ``reset(seed=...)`` does for a B = 1 env).
+
+        Returns:
+            The current step of the whole batch: the restarted environments with their first
+            observations, rewards 0 and clock 0; the others as their last step returned them.
+        """
+        envs = self._env_indices(env_index)
+        if not self._started:
+            raise RuntimeError("reset_at: call reset() first")
+        if seed is not None:
+            if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+                seed = [int(seed)]
+            for b, s in zip(envs.tolist(), self._seed_list(seed, envs.size, "seed"), strict=True):
+                self._seed_rngs[b] = np.random.default_rng(s)
+        last = self._last
+        self.sim.reset_at(envs, [self._next_sim_seed(b) for b in envs.tolist()])
+        out = self._observe_and_pack(None)
+        if last is not None:
+            # The environments that go on keep the rewards of their last step.
+            keep = np.ones(self.batch_size, dtype=bool)
+            keep[envs] = False
+            for new, old in ((out.edge_terms, last.edge_terms), (out.cloud_terms, last.cloud_terms),
+                             ({"r": out.edge_reward}, {"r": last.edge_reward}),
+                             ({"r": out.cloud_reward}, {"r": last.cloud_reward})):
+                for k in new:
+                    new[k][keep] = old[k][keep]
+        return out
+
+    def step(
+        self, edge_action: ArrayLike | None = None, cloud_action: ArrayLike | None = None
+    ) -> BatchStep:
+        """Apply the coordinators' accelerations and advance every environment one step.
+
+        Args:
+            edge_action: (B, n_edge, K_edge) accelerations [m/s^2] of each edge node's columns,
+                or ``None`` (no edge action: the on-board rules decide).
+            cloud_action: (B, K_cloud) accelerations [m/s^2] of the cloud node's columns, or
+                ``None``. Actions of padded columns are ignored. Under scheme ``E`` both are
+                ignored, under ``EE`` the cloud action is.
+
+        Raises:
+            RuntimeError: ``reset`` has not been called.
+            ValueError: an action of the wrong shape, not finite, or outside
+                ``[-a_max, a_max]`` (the message names the argument).
+        """
+        edge = self._checked(edge_action, "edge_action", (self.batch_size, self.n_edge,
+                                                          self.k_edge))
+        cloud = self._checked(cloud_action, "cloud_action", (self.batch_size, self.k_cloud))
+        return self.step_commands(edge, cloud)
+
+    # ------------------------------------------------------------------------------------
+    # for adapters
+    def step_commands(
+        self, edge_action: FloatArray | None, cloud_action: FloatArray | None
+    ) -> BatchStep:
+        """:meth:`step` without validation; NaN in an action means "no action" for that column.
+
+        For adapters that validated the actions already (the PettingZoo env sends NaN for the
+        agents left out of its action dict).
+        """
+        if not self._started:
+            raise RuntimeError("step: call reset() first")
+        sim, scheme = self.sim, self.config.scheme
+        # An action the scheme ignores is not mapped; one it uses needs its graph's columns.
+        edge_cmd = cloud_cmd = None
+        if edge_action is not None and scheme != "E":
+            if self._edge is None:
+                raise RuntimeError("step: edge_action given but 'edge' is not observed")
+            edge_cmd = self._commands(self._edge, edge_action)
+        if cloud_action is not None and scheme == "EEC":
+            if self._cloud is None:
+                raise RuntimeError("step: cloud_action given but 'cloud' is not observed")
+            cloud_cmd = self._commands(self._cloud, cloud_action[:, None, :])
+        events = sim.step(edge_cmd, cloud_cmd)
+        return self._observe_and_pack(events)
+
+    def _commands(self, graphs: StateGraphs, action: FloatArray) -> FloatArray:
+        """(B, capacity) per-slot command (NaN where none) from per-column actions."""
+        cmd = np.full(self.sim.active.shape, np.nan)
+        slots = graphs.slot
+        real = slots >= 0
+        cmd.ravel()[slots[real]] = action[real]
+        return cmd
+
+    # ------------------------------------------------------------------------------------
+    def _observe_and_pack(self, events: StepEvents | None) -> BatchStep:
+        """Build the observed graphs, the rewards (``None`` events: zero) and the flags."""
+        sim, c, b = self.sim, self.config, self.batch_size
+        view = sim.view
+        v = sim.v.ravel()[view.vehicle]
+        a = sim.a.ravel()[view.vehicle]
+        self._area = area = sim.network.control_area(view.lane, view.s)
+        # The cloud picks and is rewarded over one population (cloud_pick_population).
+        self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population)
+        self._v = v
+        self._edge = self._cloud = None
+        if "edge" in self.observe:
+            self._edge = edge_graphs(sim.network, view, sim.safety.sv, v, a, b, c, area)
+        if "cloud" in self.observe:
+            di = density_indicator(view, c.di_n)
+            self._cloud = cloud_graphs(sim.network, view, di, v, a, b, c, self._cloud_pop)
+        edge_terms, cloud_terms = self._reward_terms(events)
+        steps = sim.env_steps
+        edge, cloud = self._edge, self._cloud
+        self._last = BatchStep(
+            edge_obs=None if edge is None else edge.obs,
+            edge_mask=None if edge is None else edge.mask,
+            cloud_obs=None if cloud is None else cloud.obs[:, 0],
+            cloud_mask=None if cloud is None else cloud.mask[:, 0],
+            edge_reward=_total(edge_terms),
+            cloud_reward=_total(cloud_terms),
+            edge_terms=edge_terms,
+            cloud_terms=cloud_terms,
+            terminated=np.zeros(b, dtype=bool),
+            truncated=steps >= c.max_steps,
+            episode_steps=steps,
+        )
+        return self._last
+
+    def _reward_terms(
+        self, events: StepEvents | None
+    ) -> tuple[dict[str, FloatArray], dict[str, FloatArray]]:
+        """Edge (B, n_edge) and cloud (B,) reward terms of the current state and events."""
+        c, sim, b, n = self.config, self.sim, self.batch_size, self.n_edge
+        if events is None:
+            return ({k: np.zeros((b, n)) for k in REWARD_TERMS},
+                    {k: np.zeros(b) for k in REWARD_TERMS})
+        view = sim.view
+        area = self._area
+        inside = area >= 0
+        dv = self._v - c.reward_v_ref_mps
+        node = view.env[inside] * n + area[inside]
+        count = np.bincount(node, minlength=b * n).reshape(b, n)
+        vel_sum = np.bincount(node, dv[inside], minlength=b * n).reshape(b, n)
+        hit = events.collided_area >= 0
+        hits = np.bincount(events.collided_env[hit] * n + events.collided_area[hit],
+                           minlength=b * n).reshape(b, n)
+        # Empty areas have zero sums, so dividing by max(count, 1) gives their 0.
+        edge = {
+            "reward_sv": np.zeros((b, n)),  # needs the edge decisions: 0 unless observed
+            "reward_velocity": vel_sum / np.maximum(count, 1),
+            "reward_collision": -c.collision_penalty * hits,
+        }
+        if self._edge is not None:
+            vi = self._edge.view_index
+            # Column -1 (padding) picks the appended 0, so padded columns add nothing.
+            sv_sum = np.append(sim.safety.sv, 0.0)[vi].sum(axis=2)
+            n_dec = (vi >= 0).sum(axis=2)
+            edge["reward_sv"] = c.reward_sv_weight * (sv_sum / np.maximum(n_dec, 1))
+        pop = self._cloud_pop
+        env_pop = view.env[pop]
+        env_count = np.maximum(np.bincount(env_pop, minlength=b), 1)
+        cloud = {
+            "reward_sv": np.zeros(b),
+            "reward_velocity": np.bincount(env_pop, dv[pop], minlength=b) / env_count,
+            "reward_collision": -c.collision_penalty * events.collided_vehicles.astype(np.float64),
+        }
+        return edge, cloud
+
+    # ------------------------------------------------------------------------------------
+    def _next_sim_seed(self, b: int) -> int:
+        return int(self._seed_rngs[b].integers(0, _SEED_HIGH))
+
+    def _env_indices(self, env_index: ArrayLike) -> NDArray[np.int64]:
+        idx = np.asarray(env_index)
+        if idx.dtype == bool:
+            if idx.shape != (self.batch_size,):
+                raise ValueError(f"env_index: a bool mask must have shape ({self.batch_size},), "
+                                 f"got {idx.shape}")
+            return np.flatnonzero(idx)
+        if idx.size and not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"env_index: expected integer indices or a bool mask, got {idx.dtype}")
+        idx = idx.astype(np.int64).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.batch_size):
+            raise ValueError(f"env_index: indices must be in [0, {self.batch_size - 1}], "
+                             f"got {idx.tolist()}")
+        if np.unique(idx).size != idx.size:
+            raise ValueError(f"env_index: repeated indices {idx.tolist()}")
+        return np.sort(idx)
+
+    @staticmethod
+    def _seed_list(seed: Any, n: int, name: str) -> list[int]:
+        try:
+            seeds = [int(s) for s in seed]
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name}: expected an int or {n} ints, got {seed!r}") from err
+        if len(seeds) != n:
+            raise ValueError(f"{name}: expected {n} seeds, got {len(seeds)}")
+        if any(s < 0 for s in seeds):
+            raise ValueError(f"{name}: seeds must be >= 0, got {seeds}")
+        return seeds
+
+    def _checked(
+        self, action: ArrayLike | None, name: str, shape: tuple[int, ...]
+    ) -> FloatArray | None:
+        """``action`` as a float64 array of ``shape`` within the box, or ``ValueError``."""
+        if action is None:
+            return None
+        lim = self.config.a_max_mps2
+        expected = f"expected shape {shape} with values in [{-lim}, {lim}] m/s^2"
+        try:
+            arr = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name}: {expected}, got non-numeric "
+                             f"{type(action).__name__}") from err
+        if arr.shape != shape:
+            raise ValueError(f"{name}: {expected}, got shape {arr.shape}")
+        # NaN compares False, so this also rejects NaN and inf.
+        ok = np.abs(arr) <= self._a_limit
+        if not ok.all():
+            first = tuple(int(i) for i in np.argwhere(~ok)[0])
+            what = "NaN or inf" if not np.isfinite(arr).all() else (
+                f"min {arr.min():.3f} max {arr.max():.3f}")
+            raise ValueError(f"{name}: {expected}, got {what} (first at index {first})")
+        return arr
+
+
+def _total(terms: dict[str, FloatArray]) -> FloatArray:
+    """Reward = sum of the terms (in ``REWARD_TERMS`` order)."""
+    sv, vel, col = (terms[k] for k in REWARD_TERMS)
+    return sv + vel + col
