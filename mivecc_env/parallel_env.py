@@ -311,6 +311,10 @@ class MiVeCCParallelEnv(ParallelEnv):
             "(clip exploration noise to the action box)"
         )
 
+    def _observe(self) -> None:
+        """Rebuild the state graphs of the current simulator state (after editing it)."""
+        self._last = self.batched._observe_and_pack(None)
+
     def _observations(self, out: BatchStep) -> dict[str, np.ndarray]:
         """Observation of every live agent (views of the freshly built state graphs)."""
         if not self.agents:
