@@ -1,8 +1,9 @@
 """The paper's efficiency comparison: E, EE, EEC and a signalized baseline over densities.
 
-For every grid, density, scheme and seed this runs one evaluation episode
-(:func:`mivecc_agents.evaluation.evaluate_scheme`) with the shipped pretrained coordinators (or
-the checkpoints given with ``--edge`` / ``--cloud``), then writes
+For every grid, density, scheme and seed this runs one evaluation episode with the shipped
+pretrained coordinators (or the checkpoints given with ``--edge`` / ``--cloud``); all densities
+and seeds of a (grid, scheme) run as one batch of environments
+(:func:`mivecc_agents.evaluation.evaluate_batch`, each equal to its single run), then writes
 
 * ``paper_table.csv`` - one row per run,
 * ``paper_table.md`` - per grid and density: mean average travel velocity of each scheme, the
@@ -14,7 +15,7 @@ the checkpoints given with ``--edge`` / ``--cloud``), then writes
   intersection centre, no entry wait; its improvement rates) and the near-miss measures of
   every scheme (``mivecc_env.sim.near_miss``).
 
-Usage (the full table; about 170 episodes):
+Usage (the full table; 168 episodes in 8 batches):
     python benchmarks/paper_table.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2
 """
 
@@ -45,21 +46,23 @@ PAPER_3X3: dict[str, dict[int, float]] = {
 COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"))
 
 
-def _run(job: tuple[str, int, int, float, int, int, str | None, str | None]) -> dict[str, Any]:
+def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None]
+         ) -> list[dict[str, Any]]:
+    """All densities and seeds of one (scheme, grid) as one batch of environments."""
     import os
 
-    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per episode
-    from mivecc_agents.evaluation import evaluate_scheme
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
+    from mivecc_agents.evaluation import evaluate_batch
     from mivecc_agents.policies import load_policy, pretrained_policies
 
-    scheme, rows, cols, density, steps, seed, edge_path, cloud_path = job
+    scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path = job
     policies = pretrained_policies()
     if edge_path:
         policies["edge"] = load_policy(edge_path, expected_kind="edge")
     if cloud_path:
         policies["cloud"] = load_policy(cloud_path, expected_kind="cloud")
-    return evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
-                           progress=False, warn=False)
+    return evaluate_batch(scheme, rows, cols, densities, steps, seeds, policies=policies,
+                          progress=False, warn=False)
 
 
 def _read_csv(path: Path) -> list[dict[str, Any]]:
@@ -249,18 +252,20 @@ def main(argv: Sequence[str] | None = None) -> Path:
                         "(e.g. one run per scheme) instead of running episodes")
     args = parser.parse_args(argv)
 
-    jobs = []
+    jobs = []  # one batch (all densities x seeds) per grid and scheme
     for grid in args.grids:
         r, c = (int(x) for x in grid.split("x"))
-        for scheme, density, seed in itertools.product(args.schemes, args.densities, args.seeds):
-            jobs.append((scheme, r, c, density, args.steps, seed, args.edge, args.cloud))
+        for scheme in args.schemes:
+            jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
+                         args.edge, args.cloud))
     if args.from_csv:
         rows = [row for path in args.from_csv for row in _read_csv(path)]
     elif args.workers > 1:
         with mp.get_context("spawn").Pool(args.workers) as pool:
-            rows = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="episodes"))
+            batches = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="batches"))
+        rows = [row for batch in batches for row in batch]
     else:
-        rows = [_run(j) for j in tqdm(jobs, desc="episodes")]
+        rows = [row for j in tqdm(jobs, desc="batches") for row in _run(j)]
 
     args.out.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for row in rows for k in row))

@@ -1,6 +1,8 @@
 """Collision and efficiency study of the end-node rule readings (MiVeCC-E, rules only).
 
-Runs the bare simulator (scheme E) on a grid for several densities, seeds and rule readings:
+Runs the bare simulator (scheme E) on a grid for several densities, seeds and rule readings
+(all densities and seeds of a reading as one batched simulator; each environment equals a
+B = 1 run of its seed):
 
 * ``sensible``: nearest ahead -> SV/eta, nearest behind -> |SV/eta|,
 * ``literal``: Algorithm 3 as printed,
@@ -18,14 +20,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import itertools
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.metrics import episode_summary
+from mivecc_env.metrics import batch_summary
 from mivecc_env.sim.core import Simulator
 
 READINGS: dict[str, dict] = {
@@ -43,12 +44,38 @@ READINGS: dict[str, dict] = {
 
 
 def run_one(rows: int, cols: int, density: float, seed: int, steps: int, **overrides) -> dict:
-    """Run scheme E for ``steps`` steps and return its episode summary."""
-    cfg = MiVeCCConfig(rows=rows, cols=cols, density_vplh=density, scheme="E", **overrides)
-    sim = Simulator(cfg, seed=seed)
+    """Run scheme E for ``steps`` steps and return its episode summary (one environment)."""
+    return run_batch(rows, cols, [density], [seed], steps, **overrides)[0]
+
+
+def run_batch(rows: int, cols: int, densities: list[float], seeds: list[int], steps: int,
+              **overrides) -> list[dict]:
+    """Run scheme E for every (density, seed) as one batched simulator; returns one episode
+    summary per pair (densities outer, seeds inner), each equal to a B = 1 run of that pair."""
+    pairs = [(float(d), int(s)) for d in densities for s in seeds]
+    cfg = MiVeCCConfig(rows=rows, cols=cols, density_vplh=pairs[0][0], scheme="E", **overrides)
+    sim = Simulator(cfg, batch_size=len(pairs), seed=[s for _, s in pairs],
+                    densities=[d for d, _ in pairs])
     for _ in range(steps):
         sim.step()
-    return episode_summary(sim)
+    summary = batch_summary(sim)
+    return [{k: float(v[j]) for k, v in summary.items()} for j in range(len(pairs))]
+
+
+def _row(reading: str, density: float, per_seed: list[dict]) -> dict:
+    """One table row: the means and sums over the seeds of one reading and density."""
+    mean = {k: float(np.mean([r[k] for r in per_seed])) for k in per_seed[0]}
+    return {
+        "reading": reading, "density_vplh": density, "seeds": len(per_seed),
+        "avg_travel_velocity_mps": mean["avg_travel_velocity_mps"],
+        "upper_bound_mps": mean["upper_bound_mps"],
+        "collisions_total": int(sum(r["collisions"] for r in per_seed)),
+        "collided_vehicles_total": int(sum(r["collided_vehicles"] for r in per_seed)),
+        "arrived_total": int(sum(r["arrived"] for r in per_seed)),
+        "throughput_mean": mean["throughput"],
+        "backlog_mean": mean["backlog"],
+        **near_miss_columns(per_seed),
+    }
 
 
 def near_miss_columns(per_seed: list[dict]) -> dict:
@@ -76,22 +103,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = parser.parse_args(argv)
 
     rows = []
-    jobs = list(itertools.product(args.readings, args.densities))
-    for reading, density in tqdm(jobs, desc="rules study"):
-        per_seed = [run_one(args.rows, args.cols, density, s, args.steps, **READINGS[reading])
-                    for s in args.seeds]
-        mean = {k: float(np.mean([r[k] for r in per_seed])) for k in per_seed[0]}
-        rows.append({
-            "reading": reading, "density_vplh": density, "seeds": len(args.seeds),
-            "avg_travel_velocity_mps": mean["avg_travel_velocity_mps"],
-            "upper_bound_mps": mean["upper_bound_mps"],
-            "collisions_total": int(sum(r["collisions"] for r in per_seed)),
-            "collided_vehicles_total": int(sum(r["collided_vehicles"] for r in per_seed)),
-            "arrived_total": int(sum(r["arrived"] for r in per_seed)),
-            "throughput_mean": mean["throughput"],
-            "backlog_mean": mean["backlog"],
-            **near_miss_columns(per_seed),
-        })
+    for reading in tqdm(args.readings, desc="rules study"):
+        # every density and seed of a reading as one batch of environments
+        runs = run_batch(args.rows, args.cols, args.densities, args.seeds, args.steps,
+                         **READINGS[reading])
+        n = len(args.seeds)
+        for i, density in enumerate(args.densities):
+            rows.append(_row(reading, density, runs[i * n:(i + 1) * n]))
 
     args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "rules_study.csv", "w", newline="") as fh:

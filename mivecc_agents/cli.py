@@ -31,7 +31,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from mivecc_agents.evaluation import SCHEMES, aggregate, evaluate_scheme
+from mivecc_agents.evaluation import SCHEMES, aggregate, evaluate_batch, evaluate_scheme
 from mivecc_env import __version__
 from mivecc_env.config import ALIASES, ConfigError, MiVeCCConfig, describe_fields
 from mivecc_env.config import from_overrides as _config_from
@@ -278,12 +278,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         config = _evaluation_config(args, overrides)
         set_inference_threads(threads)
         policies = evaluation_policies(args, config)
-    results = [
-        evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps, seed,
-                        policies=policies, progress=not args.no_progress, warn=i == 0,
-                        **overrides)
-        for i, seed in enumerate(seeds)
-    ]
+    if len(seeds) == 1:
+        results = [evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
+                                   seeds[0], policies=policies, progress=not args.no_progress,
+                                   **overrides)]
+    else:  # all seeds as one batch of environments (same results as one run per seed)
+        results = evaluate_batch(args.scheme, args.rows, args.cols, args.density, args.steps,
+                                 seeds, policies=policies, progress=not args.no_progress,
+                                 **overrides)
     for result in results:
         for kind, policy in policies.items():
             result[f"{kind}_checkpoint"] = getattr(policy, "checkpoint", "")
@@ -348,8 +350,13 @@ def cmd_train(args: argparse.Namespace) -> int:
     check_train_args(args)
     # OpenMP reads its thread count when torch is first imported; torch.set_num_threads later
     # does not reach every thread, and oversubscribed cores slowed training ~10x (measured).
-    if getattr(args, "threads", None):
-        os.environ.setdefault("OMP_NUM_THREADS", str(args.threads))
+    from mivecc_agents.presets import thread_settings
+
+    for name, value in thread_settings(args.stage, args.threads).items():
+        if args.threads is not None and name == "OMP_NUM_THREADS":
+            os.environ[name] = value  # an explicit --threads wins
+        else:
+            os.environ.setdefault(name, value)
     quiet_train_output()
     check_network_sizes(args)
     check_train_checkpoints(args)

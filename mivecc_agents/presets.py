@@ -2,20 +2,30 @@
 
 ``paper``: the values of the paper's table (Section VII): Adam, lr actor 1e-3 and critic 0.05,
 both decayed linearly to 0, gamma 0.8, minibatch 48, soft update tau 0.01 ("0.99": the target
-keeps 99 % per update). ``stable``: the same but with learning rates that Adam can use
-(actor 1e-4, critic 1e-3) and gradient clipping. See ``docs/training.md`` for the measurement
-that picks the default.
+keeps 99 % per update), 0.5 updates per frame. ``stable``: learning rates that Adam can use
+(actor 1e-4, critic 1e-3), gradient clipping, and minibatch 192 with 0.125 updates per frame:
+the same 24 replayed samples per collected frame as ``paper`` in 4x fewer, 4x larger updates
+(the update is per-call-overhead bound on CPU, so this is ~3x faster). See
+``docs/training.md`` for the measurements behind the default.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass
 from typing import Any
 
 from mivecc_env.config import MiVeCCConfig
 
-__all__ = ["DEFAULT_PRESET", "PRESETS", "TrainPreset", "add_train_arguments", "get_preset"]
+__all__ = [
+    "DEFAULT_PRESET",
+    "PRESETS",
+    "TrainPreset",
+    "add_train_arguments",
+    "get_preset",
+    "thread_settings",
+]
 
 
 @dataclass(frozen=True)
@@ -32,8 +42,12 @@ class TrainPreset:
         sigma_init: Initial std of the Gaussian exploration noise [m/s^2].
         sigma_end: Final std of the noise [m/s^2] (reached after ``sigma_anneal_fraction``).
         sigma_anneal_fraction: Fraction of the run over which sigma is annealed.
-        frames_per_batch: Environment steps collected per iteration (per density env).
-        updates_per_frame: Gradient updates per collected frame (update-to-data ratio).
+        frames_per_batch: Steps of each environment per iteration (an iteration collects
+            ``frames_per_batch x`` the number of environments frames, then learns).
+        updates_per_frame: Gradient updates per collected frame (``updates_per_frame x
+            batch_size`` is the number of replayed samples per collected frame).
+        envs_per_density: Environments per training density in the native batched env
+            (``B = envs_per_density x len(densities)``; the ``pettingzoo`` backend has one).
         warmup_frames: Transitions in the buffer before learning starts.
         buffer_size: Replay capacity [transitions] (capped by ``buffer_memory_mb``).
         buffer_memory_mb: Memory cap of the replay storage [MiB].
@@ -52,6 +66,7 @@ class TrainPreset:
     sigma_anneal_fraction: float = 0.8
     frames_per_batch: int = 100
     updates_per_frame: float = 0.5
+    envs_per_density: int = 16
     warmup_frames: int = 480
     buffer_size: int = 100_000
     buffer_memory_mb: int = 1024
@@ -69,7 +84,14 @@ class TrainPreset:
 
 PRESETS: dict[str, TrainPreset] = {
     "paper": TrainPreset(name="paper", lr_actor=1e-3, lr_critic=0.05),
-    "stable": TrainPreset(name="stable", lr_actor=1e-4, lr_critic=1e-3, max_grad_norm=10.0),
+    "stable": TrainPreset(
+        name="stable",
+        lr_actor=1e-4,
+        lr_critic=1e-3,
+        max_grad_norm=10.0,
+        batch_size=192,
+        updates_per_frame=0.125,
+    ),
 }
 
 DEFAULT_PRESET = "stable"
@@ -115,7 +137,34 @@ def add_train_arguments(parser: Any) -> None:
                         help="collector processes (MultiSyncCollector when > 1)")
     parser.add_argument("--ray-address", default=None,
                         help="ray cluster address (RayCollector; pip install mivecc[ray])")
-    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch threads (default: 1 for edge, 2 for cloud)")
+    parser.add_argument("--backend", choices=("native", "pettingzoo"), default="native",
+                        help="native: batched TorchRL env (default); pettingzoo: "
+                        "PettingZooWrapper + SerialEnv, one env per density")
+    parser.add_argument("--envs-per-density", type=int, default=None,
+                        help="native backend: environments per density (default: preset's)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+",
                         action="extend", default=[], help="other env config fields")
+
+
+def thread_settings(stage: str, threads: int | None = None) -> dict[str, str]:
+    """Environment variables for torch's OpenMP threads, to set before torch is imported.
+
+    The edge learner is per-call-overhead bound, so stage I uses 1 thread; the cloud learner
+    (60x60 convolutions) gains from 2 threads on an idle machine. ``OMP_WAIT_POLICY=PASSIVE``
+    makes an idle OpenMP thread sleep instead of spinning: on this shared two-core machine a
+    spinning second thread made each update up to 30x slower, a passive one ~1.3x (measured,
+    ``docs/training.md``).
+
+    Args:
+        stage: ``"edge"`` or ``"cloud"``.
+        threads: Explicit thread count (``None``: 1 for edge, ``min(2, cores)`` for cloud).
+
+    Returns:
+        ``{"OMP_NUM_THREADS": ..., "OMP_WAIT_POLICY": "PASSIVE"}``.
+    """
+    if threads is None:
+        threads = 1 if stage == "edge" else min(2, os.cpu_count() or 1)
+    return {"OMP_NUM_THREADS": str(int(threads)), "OMP_WAIT_POLICY": "PASSIVE"}

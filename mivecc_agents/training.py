@@ -20,6 +20,7 @@ mean of DDPGLoss is already the right loss, no masked reduction is needed.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import inspect
 import math
@@ -35,6 +36,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 
 from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mivecc_agents.learner import DDPGLearner, UpdateStats
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
 
@@ -148,8 +150,10 @@ def make_policy(
     actor: TensorDictModule,
     noise: nn.Module | None,
     frozen_edge: TensorDictModule | None = None,
+    groups: Sequence[str] = GROUPS,
 ) -> TensorDictSequential:
-    """The collection policy: trained actor (+ noise) and the other group's fixed actions."""
+    """The collection policy: trained actor (+ noise) and the other group's fixed actions
+    (stage I writes zero cloud actions only if the env has a ``cloud`` group)."""
     group = STAGES[stage]["group"]
     mods: list[nn.Module] = []
     if stage == "cloud":
@@ -160,25 +164,9 @@ def make_policy(
     if noise is not None:
         mods.append(noise)
     mods.append(_finalize(group))
-    if stage == "edge":
+    if stage == "edge" and "cloud" in groups:
         mods.append(zero_policy("cloud"))
     return TensorDictSequential(*mods)
-
-
-def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
-    """DDPG loss of one agent group: target actor and critic, per-group keys, TD(0)."""
-    from torchrl.objectives import DDPGLoss, ValueEstimators
-
-    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
-    loss.set_keys(
-        state_action_value=(group, "state_action_value"),
-        reward=(group, "reward"),
-        done=(group, "done"),
-        terminated=(group, "terminated"),
-        priority=(group, "td_error"),  # one priority key per group, not a shared root key
-    )
-    loss.make_value_estimator(ValueEstimators.TD0, gamma=gamma)
-    return loss
 
 
 def load_frozen_edge_actor(path: str | Path) -> TensorDictModule:
@@ -255,9 +243,21 @@ def _flatten_ray_batch(data: TensorDictBase) -> TensorDictBase:
     return torch.cat(data.unbind(0), dim=1) if data.shape[0] > 1 else data[0]
 
 
-def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, workers, ray_address):
+def _make_collector(
+    env_fn: Callable | Sequence[Callable],
+    policy,
+    frames_per_batch,
+    total_frames,
+    workers,
+    ray_address,
+):
+    """Collector over ``env_fn`` (or one factory per worker): local, multi-process or Ray."""
     from torchrl.collectors import Collector, MultiSyncCollector
 
+    n = max(1, workers)
+    fns = list(env_fn) if isinstance(env_fn, Sequence) else [env_fn] * n
+    if len(fns) != n:
+        raise TrainingError(f"{len(fns)} env factories for {n} workers")
     if ray_address is not None:
         try:
             import ray  # noqa: F401
@@ -267,7 +267,6 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
             ) from exc
         from torchrl.collectors.distributed import RayCollector
 
-        n = max(1, workers)
         if frames_per_batch % n:
             raise TrainingError(
                 f"ray: {frames_per_batch} frames per batch cannot be split over {n} workers"
@@ -282,7 +281,7 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
             init.update(num_cpus=max(n, os.cpu_count() or 1), include_dashboard=False)
         try:
             collector = RayCollector(
-                [env_fn] * n,
+                fns,
                 policy,
                 frames_per_batch=frames_per_batch,
                 total_frames=total_frames,
@@ -294,15 +293,15 @@ def _make_collector(env_fn: Callable, policy, frames_per_batch, total_frames, wo
             raise TrainingError(f"cannot connect to Ray at {ray_address!r}: {exc}") from exc
         collector.update_policy_weights_()  # connect the weight sync before the first batch
         return collector
-    if workers > 1:
+    if n > 1:
         return MultiSyncCollector(
-            [env_fn] * workers,
+            fns,
             policy,
             frames_per_batch=frames_per_batch,
             total_frames=total_frames,
         )
     return Collector(
-        env_fn,
+        fns[0],
         policy,
         frames_per_batch=frames_per_batch,
         total_frames=total_frames,
@@ -316,9 +315,161 @@ def train(*args: Any, **kwargs: Any) -> Path:
     TorchRL's exploration noise, replay sampling and network initialisation draw from torch's
     global generator, so training runs inside ``torch.random.fork_rng``: it is seeded with
     ``seed`` there and the caller's global random state is restored afterwards.
+
+    Raises:
+        TrainingInterrupted: Ctrl-C (SIGINT) stopped the run; the checkpoint and the plots were
+            saved first (``.checkpoint`` holds the path).
     """
     with torch.random.fork_rng(devices=[]):
         return _train(*args, **kwargs)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped by Ctrl-C after saving; ``checkpoint`` is the path written."""
+
+    def __init__(self, checkpoint: Path, frames: int) -> None:
+        super().__init__(f"interrupted at {frames} frames; checkpoint saved to {checkpoint}")
+        self.checkpoint = checkpoint
+        self.frames = frames
+
+
+class _StopOnSigint:
+    """First Ctrl-C: set ``requested`` (the loop stops at the next check and saves); a second
+    one raises ``KeyboardInterrupt`` at once. Only installed in the main thread."""
+
+    def __init__(self) -> None:
+        self.requested = False
+        self._old: Any = None
+
+    def __enter__(self) -> _StopOnSigint:
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        import signal
+        import sys
+
+        if self.requested:
+            signal.signal(signal.SIGINT, self._old or signal.default_int_handler)
+            raise KeyboardInterrupt
+        self.requested = True
+        print("mivecc train: Ctrl-C: saving a checkpoint and the plots after this step "
+              "(Ctrl-C again to abort without saving)", file=sys.stderr, flush=True)
+
+    def __exit__(self, *exc: Any) -> None:
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+
+
+def _densities(densities: float | Sequence[float]) -> list[float]:
+    if isinstance(densities, (int, float)):
+        return [float(densities)]
+    dens = [float(d) for d in densities]
+    if not dens:
+        raise TrainingError("at least one density is needed")
+    return dens
+
+
+def env_factory(
+    backend: str,
+    densities: Sequence[float],
+    overrides: dict[str, Any],
+    scheme: str,
+    envs_per_density: int = 1,
+    seed: int | None = None,
+) -> tuple[Callable[[], Any], list[int]]:
+    """The collector's env factory and the density index of each of its environments.
+
+    Args:
+        backend: ``"native"`` (:class:`~mivecc_agents.torchrl_env.MiVeCCTorchEnv`, one
+            simulator for ``envs_per_density x len(densities)`` environments) or
+            ``"pettingzoo"`` (``PettingZooWrapper`` envs in a ``SerialEnv``, one per density).
+        densities: Training densities [veh/lane/h].
+        overrides: Env config fields (grid, episode length...).
+        scheme: ``"EE"`` or ``"EEC"``.
+        envs_per_density: Environments per density (native backend).
+        seed: Native backend: seed of the env (environment ``b`` gets ``seed + b``).
+
+    Returns:
+        ``(factory, env_density)`` with ``env_density[b]`` the index into ``densities`` of
+        environment ``b`` (batch dim 0 of the collected data).
+    """
+    if backend == "pettingzoo":
+        return partial(_make_batched_env, list(densities), overrides, scheme), list(
+            range(len(densities))
+        )
+    if backend != "native":
+        raise TrainingError(f"backend: must be 'native' or 'pettingzoo', got {backend!r}")
+    if envs_per_density < 1:
+        raise TrainingError(f"envs_per_density: must be >= 1, got {envs_per_density}")
+    env_density = [i for i in range(len(densities)) for _ in range(envs_per_density)]
+    per_env = [float(densities[i]) for i in env_density]
+    return partial(make_native_env, per_env, overrides, scheme, seed), env_density
+
+
+#: Groups the native env exposes in each stage (stage I needs no cloud graph).
+_STAGE_GROUPS = {"EE": ("edge",), "EEC": ("edge", "cloud")}
+#: Episode-summary keys the training log reads.
+_LOG_KEYS = ("avg_travel_velocity_mps", "collisions")
+
+
+def make_native_env(
+    densities: Sequence[float], overrides: dict[str, Any], scheme: str, seed: int | None = None
+):
+    """Native batched TorchRL env (one environment per entry of ``densities``) + RewardSum.
+
+    It has the keys of :func:`make_env` that training reads: ``(g, "mask")`` at the root and
+    under ``next``, and the ``(g, "info")`` summary keys of the log. Scheme ``EE`` exposes only
+    the ``edge`` group (stage I acts on no cloud graph, so none is built).
+    """
+    from torchrl.envs import RewardSum, TransformedEnv
+
+    from mivecc_agents.torchrl_env import MiVeCCTorchEnv
+
+    base = MiVeCCTorchEnv(
+        densities=list(densities),
+        scheme=scheme,
+        groups=_STAGE_GROUPS.get(scheme, GROUPS),
+        summary_keys=_LOG_KEYS,
+        seed=seed,
+        **overrides,
+    )
+    groups = [g for g in GROUPS if g in base.group_map]
+    return TransformedEnv(
+        base,
+        RewardSum(
+            in_keys=[(g, "reward") for g in groups],
+            out_keys=[(g, "episode_reward") for g in groups],
+        ),
+    )
+
+
+def env_groups(env: Any) -> list[str]:
+    """The agent groups (``edge``, ``cloud``) that an env (or a batch of envs) has."""
+    acts = env.full_action_spec.keys()
+    return [g for g in GROUPS if g in acts]
+
+
+def _load_start(resume: str | Path, stage: str, group: str) -> dict[str, Any]:
+    """Load the checkpoint to resume from; a policy-only export gives a warm start."""
+    import sys
+
+    ck = load_checkpoint(resume, expected_kind=group)
+    if ck["stage"] != stage:
+        raise CheckpointError(f"{resume}: is a {ck['stage']!r}-stage checkpoint, not {stage!r}")
+    if "loss" not in ck or "optimizer" not in ck:
+        print(
+            f"mivecc train: {resume} is a policy-only export (no optimiser or target "
+            "networks): warm start from its actor and critic weights, frames count from 0",
+            file=sys.stderr,
+        )
+    return ck
 
 
 def _train(
@@ -340,18 +491,22 @@ def _train(
     episode_steps: int | None = None,
     buffer_size: int | None = None,
     save_every: int = 50,
+    backend: str = "native",
+    envs_per_density: int | None = None,
 ) -> Path:
     """Train one stage and return the path of the final checkpoint.
 
     Args:
         stage: ``"edge"`` (stage I, scheme EE) or ``"cloud"`` (stage II, scheme EEC).
         preset: Preset name or :class:`TrainPreset`.
-        frames: Total env steps (summed over the density envs); default 50 episodes.
+        frames: Total env steps (summed over all environments); default 50 episodes per
+            density.
         rows, cols: Grid size.
-        densities: One or several arrival densities [veh/lane/h], trained in parallel envs.
+        densities: One or several arrival densities [veh/lane/h], trained together.
         seed: Seed of torch and the envs.
         out_dir: Output folder (``train_log.csv``, ``learning_curve.png``, ``<stage>.pt``).
-        resume: Checkpoint of this stage to continue from (frames count continues).
+        resume: Checkpoint of this stage to continue from (frames count continues); a
+            policy-only export (``export_policy``, the shipped policies) is a warm start.
         workers: Collector processes (``MultiSyncCollector`` when > 1).
         ray_address: Collect with ``RayCollector`` (``workers`` remote collectors, 1 CPU each;
             needs ``pip install mivecc[ray]``): ``"local"`` starts a local Ray instance,
@@ -362,13 +517,15 @@ def _train(
         episode_steps: Steps per episode (default: the preset's).
         buffer_size: Replay capacity override [transitions].
         save_every: Save a checkpoint every this many iterations.
+        backend: ``"native"`` (batched TorchRL env, default) or ``"pettingzoo"`` (the
+            PettingZooWrapper + SerialEnv path, one env per density).
+        envs_per_density: Native backend: environments per density (default: the preset's).
 
     Returns:
         Path of the checkpoint written at the end.
     """
     from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
     from torchrl.modules import AdditiveGaussianModule
-    from torchrl.objectives import SoftUpdate
     from tqdm.auto import tqdm
 
     if stage not in STAGES:
@@ -378,28 +535,36 @@ def _train(
         p = p.replace(buffer_size=int(buffer_size))
     if episode_steps is not None:
         p = p.replace(episode_steps=int(episode_steps))
+    if envs_per_density is not None:
+        p = p.replace(envs_per_density=int(envs_per_density))
     group = STAGES[stage]["group"]
     scheme = STAGES[stage]["scheme"]
-    dens = (
-        [float(densities)] if isinstance(densities, (int, float)) else [float(d) for d in densities]
-    )
-    if not dens:
-        raise TrainingError("at least one density is needed")
+    dens = _densities(densities)
     overrides = {
         **(config_overrides or {}),
         "rows": rows,
         "cols": cols,
         "max_steps": p.episode_steps,
     }
+    env_fn, env_density = env_factory(backend, dens, overrides, scheme, p.envs_per_density, seed)
+    n_envs = len(env_density)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     total_frames = int(frames) if frames is not None else 50 * p.episode_steps * len(dens)
-    fpb = p.frames_per_batch * len(dens)
+    fpb = p.frames_per_batch * n_envs
     torch.manual_seed(seed)
 
-    # --- networks, loss, optimiser ------------------------------------------------------
+    # --- networks, learner ------------------------------------------------------------------
     actor = make_actor(group, group)
     critic = make_critic(group, group)
+    start = _load_start(resume, stage, group) if resume is not None else None
+    warm = start is not None and "loss" not in start
+    if warm:
+        try:
+            actor.module.load_state_dict(start["actor"])
+            critic.module.load_state_dict(start["critic"])
+        except (RuntimeError, KeyError) as exc:
+            raise CheckpointError(f"{resume}: weights do not fit the {group} networks") from exc
     frozen_edge = None
     edge_ckpt_path = None
     if stage == "cloud":
@@ -414,35 +579,22 @@ def _train(
         edge_ckpt_path = str(edge_checkpoint)
         frozen_edge = load_frozen_edge_actor(edge_checkpoint)
 
-    loss = make_loss(actor, critic, group, p.gamma)
-    updater = SoftUpdate(loss, tau=p.tau)
-    actor_params = list(actor.parameters())
-    critic_params = list(critic.parameters())
-    optim = torch.optim.Adam(
-        [{"params": actor_params, "lr": p.lr_actor}, {"params": critic_params, "lr": p.lr_critic}]
-    )
     state = {"frames": 0, "updates": 0, "iteration": 0}
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        optim, lambda _: max(0.0, 1.0 - state["frames"] / max(total_frames, 1))
+    learner = DDPGLearner(
+        actor, critic, group, p, progress=lambda: state["frames"] / max(total_frames, 1)
     )
-
-    if resume is not None:
-        ck = load_checkpoint(resume, expected_kind=group)
-        if ck["stage"] != stage:
-            raise CheckpointError(f"{resume}: is a {ck['stage']!r}-stage checkpoint, not {stage!r}")
-        loss.load_state_dict(ck["loss"])
-        optim.load_state_dict(ck["optimizer"])
+    if start is not None and not warm:
+        learner.load_state_dict(start)
         state.update(
-            frames=int(ck["frames"]),
-            updates=int(ck["updates"]),
-            iteration=int(ck.get("metrics", {}).get("iteration", 0)),
+            frames=int(start["frames"]),
+            updates=int(start["updates"]),
+            iteration=int(start.get("metrics", {}).get("iteration", 0)),
         )
-        sched.step()
+        learner.updates = state["updates"]
 
     # --- exploration policy, env, collector ----------------------------------------------
-    probe = make_env({**overrides, "density": dens[0]}, scheme)
-    action_spec = probe.full_action_spec[(group, "action")]
-    probe.close()
+    probe = env_fn()
+    action_spec = probe.full_action_spec[(group, "action")].clone()
     noise = AdditiveGaussianModule(
         spec=action_spec,
         sigma_init=p.sigma_init,
@@ -452,15 +604,14 @@ def _train(
     )
     if state["frames"]:
         noise.step(state["frames"])
-    policy = make_policy(stage, actor, noise, frozen_edge)
+    policy = make_policy(stage, actor, noise, frozen_edge, groups=env_groups(probe))
     remaining = max(0, total_frames - state["frames"])
-    env_fn = partial(_make_batched_env, dens, overrides, scheme)
 
     # --- replay buffer, sized on purpose ---------------------------------------------------
     keys = _buffer_keys(group)
-    probe_td = env_fn()
-    sample = probe_td.rollout(1, policy)
-    probe_td.close()
+    with torch.no_grad():
+        sample = probe.rollout(1, policy)
+    probe.close()
     per_transition = sum(
         t.numel() * t.element_size() for t in sample.select(*keys).reshape(-1)[0].values(True, True)
     )
@@ -491,11 +642,12 @@ def _train(
         "buffer",
         "wall_s",
     ]
-    write_header = not (resume is not None and csv_path.exists())
+    write_header = not (resume is not None and not warm and csv_path.exists())
     fh = csv_path.open("w" if write_header else "a", newline="")
     writer = csv.DictWriter(fh, fieldnames=fields)
     if write_header:
         writer.writeheader()
+        fh.flush()
     tb = _tensorboard_writer(out_dir)
 
     ckpt_path = out_dir / f"{stage}.pt"
@@ -509,8 +661,11 @@ def _train(
             "edge_checkpoint": edge_ckpt_path,
             "densities": dens,
             "seed": seed,
+            "backend": backend,
+            "n_envs": n_envs,
             "buffer_capacity": capacity,
             "bytes_per_transition": per_transition,
+            "warm_start_from": str(resume) if warm else None,
         },
     }
 
@@ -521,8 +676,7 @@ def _train(
                 **meta,
                 "actor": actor.module.state_dict(),
                 "critic": critic.module.state_dict(),
-                "loss": loss.state_dict(),
-                "optimizer": optim.state_dict(),
+                **learner.state_dict(),
                 "frames": state["frames"],
                 "updates": state["updates"],
                 "metrics": {**metrics, "iteration": state["iteration"]},
@@ -539,88 +693,74 @@ def _train(
         desc=f"train {stage}",
         unit="frame",
     )
-    if remaining > 0:
-        collector = _make_collector(env_fn, policy, fpb, remaining, workers, ray_address)
-        collector.set_seed(seed + state["frames"])
+    stop = _StopOnSigint()
+    with stop:
+        collector = None
         try:
-            t_last = time.perf_counter()
-            for data in collector:
-                t_col = time.perf_counter() - t_last
-                n = data.numel()
-                state["frames"] += n
-                state["iteration"] += 1
-                buffer.extend(data.select(*keys).reshape(-1))
-                noise.step(n)
-                # --- optimisation
-                t1 = time.perf_counter()
-                n_upd = 0
-                cl, al, qm = [], [], []
-                if len(buffer) >= max(p.warmup_frames, p.batch_size):
-                    n_upd = max(1, round(p.updates_per_frame * n))
-                    for _ in range(n_upd):
-                        batch = buffer.sample()
-                        out = loss(batch)
-                        total = out["loss_actor"] + out["loss_value"]
-                        optim.zero_grad(set_to_none=True)
-                        total.backward()
-                        if p.max_grad_norm is not None:
-                            nn.utils.clip_grad_norm_(actor_params, p.max_grad_norm)
-                            nn.utils.clip_grad_norm_(critic_params, p.max_grad_norm)
-                        optim.step()
-                        updater.step()
-                        cl.append(out["loss_value"].detach())
-                        al.append(out["loss_actor"].detach())
-                        qm.append(out["pred_value"].detach().mean())
-                    state["updates"] += n_upd
-                t_opt = time.perf_counter() - t1
-                if n_upd:  # (stepping before the first optimizer.step() only warns)
-                    sched.step()
-                if workers > 1 or ray_address is not None:
-                    collector.update_policy_weights_()
-                metrics = _metrics(
-                    data,
-                    group=group,
-                    densities=dens,
-                    state=state,
-                    episodes=episodes,
-                    critic_losses=cl,
-                    actor_losses=al,
-                    q_means=qm,
-                    optimizer=optim,
-                    noise=noise,
-                    frames_in_batch=n,
-                    n_updates=n_upd,
-                    collect_s=t_col,
-                    optimise_s=t_opt,
-                    buffer_len=len(buffer),
-                    wall_s=time.perf_counter() - t0,
-                    batch_size=p.batch_size,
+            if remaining > 0 and not stop.requested:
+                collector = _make_collector(
+                    _worker_env_fns(backend, dens, overrides, scheme, p, seed, state, workers),
+                    policy, fpb, remaining, workers, ray_address,
                 )
-                episodes = int(metrics["episodes"])
-                writer.writerow(metrics)
-                fh.flush()
-                if tb is not None:
-                    for key, value in metrics.items():
-                        if isinstance(value, int | float) and key not in ("iteration", "frames"):
-                            tb.add_scalar(f"{stage}/{key}", value, int(metrics["frames"]))
-                bar.update(n)
-                bar.set_postfix(
-                    v=f"{metrics['avg_velocity_mps']:.2f}", qloss=f"{metrics['critic_loss']:.3g}"
-                )
-                if save_every and state["iteration"] % save_every == 0:
-                    _save(metrics)
+                if backend == "pettingzoo":  # the native envs are seeded by their factories
+                    collector.set_seed(seed + state["frames"])
                 t_last = time.perf_counter()
+                for data in collector:
+                    t_col = time.perf_counter() - t_last
+                    n = data.numel()
+                    state["frames"] += n
+                    state["iteration"] += 1
+                    buffer.extend(data.select(*keys).reshape(-1))
+                    noise.step(n)
+                    stats = UpdateStats()
+                    if len(buffer) >= max(p.warmup_frames, p.batch_size):
+                        n_upd = max(1, round(p.updates_per_frame * n))
+                        stats = learner.update(buffer, n_upd, lambda: stop.requested)
+                        state["updates"] += stats.n_updates
+                    if workers > 1 or ray_address is not None:
+                        collector.update_policy_weights_()
+                    metrics = _metrics(
+                        data,
+                        group=group,
+                        densities=dens,
+                        env_density=env_density,
+                        state=state,
+                        episodes=episodes,
+                        stats=stats,
+                        lr=learner.lr(),
+                        noise=noise,
+                        frames_in_batch=n,
+                        collect_s=t_col,
+                        buffer_len=len(buffer),
+                        wall_s=time.perf_counter() - t0,
+                        batch_size=p.batch_size,
+                    )
+                    episodes = int(metrics["episodes"])
+                    writer.writerow(metrics)
+                    fh.flush()
+                    _log_tensorboard(tb, stage, metrics)
+                    bar.update(n)
+                    bar.set_postfix(
+                        v=f"{metrics['avg_velocity_mps']:.2f}",
+                        qloss=f"{metrics['critic_loss']:.3g}",
+                    )
+                    if stop.requested:
+                        break
+                    if save_every and state["iteration"] % save_every == 0:
+                        _save(metrics)
+                    t_last = time.perf_counter()
         finally:
-            collector.shutdown()
+            if collector is not None:
+                with contextlib.suppress(Exception):  # an interrupted worker may be gone
+                    collector.shutdown()
             bar.close()
             fh.close()
             if tb is not None:
                 tb.close()
-    else:
-        bar.close()
-        fh.close()
-    path = _save(metrics)
-    plot_learning_curve(csv_path, out_dir / "learning_curve.png")
+        path = _save(metrics)
+        plot_learning_curve(csv_path, out_dir / "learning_curve.png")
+    if stop.requested:
+        raise TrainingInterrupted(path, state["frames"])
     return path
 
 
@@ -633,14 +773,51 @@ def _tensorboard_writer(out_dir: Path) -> Any:
     return SummaryWriter(log_dir=str(out_dir / "tb"))
 
 
+def _worker_env_fns(
+    backend: str,
+    dens: list[float],
+    overrides: dict[str, Any],
+    scheme: str,
+    p: TrainPreset,
+    seed: int,
+    state: dict[str, int],
+    workers: int,
+) -> list[Callable]:
+    """One env factory per collector worker; native envs get distinct seeds per worker (and
+    per resumed run: the frame count is added)."""
+    n = max(1, workers)
+    n_envs = p.envs_per_density * len(dens)
+    base = seed + state["frames"]
+    return [
+        env_factory(backend, dens, overrides, scheme, p.envs_per_density, base + w * n_envs)[0]
+        for w in range(n)
+    ]
+
+
+def _log_tensorboard(tb: Any, stage: str, metrics: dict[str, float]) -> None:
+    """Every numeric metric as a TensorBoard scalar at the current frame count."""
+    if tb is None:
+        return
+    for key, value in metrics.items():
+        if isinstance(value, int | float) and key not in ("iteration", "frames"):
+            tb.add_scalar(f"{stage}/{key}", value, int(metrics["frames"]))
+
+
 def _config_dict(overrides: dict[str, Any], scheme: str, dens: list[float]) -> dict[str, Any]:
     from mivecc_env.config import from_overrides
 
     return from_overrides(None, **{**overrides, "scheme": scheme, "density": dens[0]}).to_dict()
 
 
-def _mean(xs: list[torch.Tensor]) -> float:
-    return float(torch.stack(xs).mean()) if xs else math.nan
+def _summary_entry(nxt: TensorDictBase, group: str, key: str) -> torch.Tensor:
+    """An episode-summary entry ``(..., n_agents)``: from the group's infos, else from the
+    cloud agent's (the PettingZoo env puts the summary there only), else NaN."""
+    for g in (group, "cloud"):
+        value = nxt.get((g, "info", key), None)
+        if value is not None:
+            return value
+    shape = nxt[group, "reward"].shape[:-1]
+    return torch.full(shape, math.nan)
 
 
 def _metrics(
@@ -648,29 +825,25 @@ def _metrics(
     *,
     group: str,
     densities: list[float],
+    env_density: list[int],
     state: dict[str, int],
     episodes: int,
-    critic_losses: list[torch.Tensor],
-    actor_losses: list[torch.Tensor],
-    q_means: list[torch.Tensor],
-    optimizer: torch.optim.Optimizer,
+    stats: UpdateStats,
+    lr: tuple[float, float],
     noise: Any,
     frames_in_batch: int,
-    n_updates: int,
     collect_s: float,
-    optimise_s: float,
     buffer_len: int,
     wall_s: float,
     batch_size: int,
 ) -> dict[str, float]:
-    """One CSV row. ``data`` has batch dims ``(n_densities, T)`` (or flattened by workers)."""
+    """One CSV row. ``data`` has batch dims ``(n_envs, T)`` (or flattened by workers);
+    ``env_density[b]`` is the density index of environment ``b``."""
     nxt = data["next"]
     reward = nxt[group, "reward"]
     done = nxt["done"].reshape(-1)
-    # The episode summary is in the cloud agent's info (the whole network), shape (..., 1).
-    vel = nxt["cloud", "info", "avg_travel_velocity_mps"]
-    vel = torch.where(nxt["cloud", "info", "throughput"] > 0, vel, math.nan)  # NaN: none exited
-    coll = nxt["cloud", "info", "collisions"]
+    vel = _summary_entry(nxt, group, "avg_travel_velocity_mps")  # (..., n_agents)
+    coll = _summary_entry(nxt, group, "collisions")
     row: dict[str, float] = {
         "iteration": state["iteration"],
         "frames": state["frames"],
@@ -678,32 +851,43 @@ def _metrics(
         "reward_mean": float(reward.mean()),
         "episode_reward": math.nan,
         "collisions": float(coll.reshape(-1, coll.shape[-1])[:, 0].max()),
-        "critic_loss": _mean(critic_losses),
-        "actor_loss": _mean(actor_losses),
-        "q_mean": _mean(q_means),
-        "lr_actor": optimizer.param_groups[0]["lr"],
-        "lr_critic": optimizer.param_groups[1]["lr"],
+        "critic_loss": stats.critic_loss,
+        "actor_loss": stats.actor_loss,
+        "q_mean": stats.q_mean,
+        "lr_actor": lr[0],
+        "lr_critic": lr[1],
         "sigma": float(noise.sigma),
-        "updates": n_updates,
+        "updates": stats.n_updates,
         "fps_collect": frames_in_batch / max(collect_s, 1e-9),
-        "fps_optim": n_updates * batch_size / max(optimise_s, 1e-9) if n_updates else math.nan,
+        "fps_optim": (
+            stats.n_updates * batch_size / max(stats.seconds, 1e-9) if stats.n_updates else math.nan
+        ),
         "buffer": buffer_len,
         "wall_s": wall_s,
     }
-    # per density: the running episode value at the last step of the batch, and the final
-    # value of the last episode that ended in this batch (NaN if none ended)
-    if vel.ndim >= 3 and vel.shape[0] == len(densities):
-        per_d = vel[..., 0]  # (n_densities, T)
-        done_d = nxt["done"].reshape(per_d.shape)
-    else:
-        per_d = vel.reshape(-1, vel.shape[-1])[:, 0].unsqueeze(0).expand(len(densities), -1)
-        done_d = done.unsqueeze(0).expand(len(densities), -1)
-    for i, d in enumerate(densities):
-        row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_d[i, -1])
-        ends = torch.nonzero(done_d[i]).flatten()
-        row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
-            float(per_d[i, ends[-1]]) if ends.numel() else math.nan
-        )
+    # per density: the running episode value at the last step of the batch (mean over the
+    # density's environments), and the final value of the episodes that ended in this batch
+    # (NaN if none ended)
+    n_envs = len(env_density)
+    if vel.ndim >= 3 and vel.shape[0] == n_envs:
+        per_env = vel[..., 0]  # (n_envs, T)
+        done_e = nxt["done"].reshape(per_env.shape)
+        owner = torch.as_tensor(env_density)
+        for i, d in enumerate(densities):
+            sel = owner == i
+            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_env[sel, -1].mean())
+            ended = per_env[sel][done_e[sel]]
+            row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
+                float(ended.mean()) if ended.numel() else math.nan
+            )
+    else:  # layout unknown (e.g. flattened by collector workers): one value for all densities
+        flat = vel.reshape(-1, vel.shape[-1])[:, 0]
+        ended = flat[done]
+        for d in densities:
+            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(flat[-1])
+            row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
+                float(ended.mean()) if ended.numel() else math.nan
+            )
     per_density = [row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in densities]
     row["avg_velocity_mps"] = sum(per_density) / len(densities)
     if done.any():
@@ -717,12 +901,16 @@ def _metrics(
 # Command line (``mivecc train``)
 def train_from_args(args) -> int:
     """Run :func:`train` from parsed ``mivecc train`` options; returns the exit status."""
+    import os
     import sys
 
     from mivecc_agents.cli import parse_set_items
+    from mivecc_agents.presets import thread_settings
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    threads = thread_settings(args.stage, args.threads)["OMP_NUM_THREADS"]
+    if args.threads is None:  # an OMP_NUM_THREADS of the caller wins over the default
+        threads = os.environ.get("OMP_NUM_THREADS", threads)
+    torch.set_num_threads(int(threads))
     default = 1 if args.stage == "edge" else 3
     try:
         path = train(
@@ -732,10 +920,15 @@ def train_from_args(args) -> int:
             ray_address=args.ray_address, progress=not args.no_progress,
             edge_checkpoint=args.edge_checkpoint, config_overrides=parse_set_items(args.set_items),
             episode_steps=args.episode_steps, buffer_size=args.buffer_size,
+            backend=args.backend, envs_per_density=args.envs_per_density,
         )
     except (TrainingError, CheckpointError) as exc:
         print(f"mivecc train: error: {exc}", file=sys.stderr)
         return 2
+    except TrainingInterrupted as exc:
+        print(f"mivecc train: {exc}", file=sys.stderr)
+        print(exc.checkpoint)
+        return 130
     print(path)
     return 0
 

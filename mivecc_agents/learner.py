@@ -1,0 +1,156 @@
+"""The DDPG learner of one agent group: TorchRL ``DDPGLoss`` + ``SoftUpdate`` + Adam.
+
+One object owns the loss (actor, critic and their target copies), the optimiser and the linear
+learning-rate decay, and performs gradient updates from a replay buffer. Training
+(:mod:`mivecc_agents.training`) and the throughput benchmark (``benchmarks/train_speed.py``)
+use the same :meth:`DDPGLearner.update`, so the benchmark times exactly what training runs.
+Thread settings: :func:`mivecc_agents.presets.thread_settings`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from torch import nn
+
+from mivecc_agents.presets import TrainPreset
+
+__all__ = ["DDPGLearner", "UpdateStats", "make_loss"]
+
+
+def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
+    """DDPG loss of one agent group: target actor and critic, per-group keys, TD(0)."""
+    from torchrl.objectives import DDPGLoss, ValueEstimators
+
+    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
+    loss.set_keys(
+        state_action_value=(group, "state_action_value"),
+        reward=(group, "reward"),
+        done=(group, "done"),
+        terminated=(group, "terminated"),
+        priority=(group, "td_error"),  # one priority key per group, not a shared root key
+    )
+    loss.make_value_estimator(ValueEstimators.TD0, gamma=gamma)
+    return loss
+
+
+@dataclass
+class UpdateStats:
+    """Losses of the updates of one call of :meth:`DDPGLearner.update` (means, NaN if none)."""
+
+    n_updates: int = 0
+    critic_loss: float = math.nan
+    actor_loss: float = math.nan
+    q_mean: float = math.nan
+    seconds: float = 0.0
+    _parts: dict[str, list[torch.Tensor]] = field(default_factory=dict, repr=False)
+
+
+class DDPGLearner:
+    """Loss, optimiser, soft target update and learning-rate decay of one group.
+
+    Args:
+        actor: The group's actor (``TensorDictModule``), weights already loaded if warm-started.
+        critic: The group's critic (``ValueOperator``).
+        group: Agent group name (``"edge"`` or ``"cloud"``).
+        preset: Hyper-parameters (learning rates, gamma, tau, clipping, minibatch size).
+        progress: Callable returning the fraction of the run done in [0, 1] (drives the linear
+            learning-rate decay to 0); default: no decay.
+    """
+
+    def __init__(
+        self,
+        actor: Any,
+        critic: Any,
+        group: str,
+        preset: TrainPreset,
+        progress: Callable[[], float] | None = None,
+    ) -> None:
+        from torchrl.objectives import SoftUpdate
+
+        self.group = group
+        self.preset = preset
+        self.actor, self.critic = actor, critic
+        self.loss = make_loss(actor, critic, group, preset.gamma)
+        self.updater = SoftUpdate(self.loss, tau=preset.tau)
+        self._actor_params = list(actor.parameters())
+        self._critic_params = list(critic.parameters())
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": self._actor_params, "lr": preset.lr_actor},
+                {"params": self._critic_params, "lr": preset.lr_critic},
+            ]
+        )
+        frac = progress or (lambda: 0.0)
+        self.scheduler = torch.optim.lr_scheduler.LambdaLR(
+            self.optimizer, lambda _: max(0.0, 1.0 - frac())
+        )
+        self.updates = 0
+
+    # ----------------------------------------------------------------------------------------
+    def update(
+        self, buffer: Any, n: int, should_stop: Callable[[], bool] | None = None
+    ) -> UpdateStats:
+        """Run ``n`` gradient updates on minibatches sampled from ``buffer``.
+
+        Args:
+            buffer: A TorchRL replay buffer whose ``sample()`` returns a minibatch.
+            n: Number of updates.
+            should_stop: Checked before every update; stops early when it returns True.
+
+        Returns:
+            The mean losses and the number of updates done.
+        """
+        import time
+
+        p = self.preset
+        t0 = time.perf_counter()
+        cl, al, qm = [], [], []
+        for _ in range(n):
+            if should_stop is not None and should_stop():
+                break
+            out = self.loss(buffer.sample())
+            total = out["loss_actor"] + out["loss_value"]
+            self.optimizer.zero_grad(set_to_none=True)
+            total.backward()
+            if p.max_grad_norm is not None:
+                nn.utils.clip_grad_norm_(self._actor_params, p.max_grad_norm)
+                nn.utils.clip_grad_norm_(self._critic_params, p.max_grad_norm)
+            self.optimizer.step()
+            self.updater.step()
+            cl.append(out["loss_value"].detach())
+            al.append(out["loss_actor"].detach())
+            qm.append(out["pred_value"].detach().mean())
+        done = len(cl)
+        self.updates += done
+        if done:  # (stepping the scheduler before the first optimizer.step() only warns)
+            self.scheduler.step()
+        return UpdateStats(
+            n_updates=done,
+            critic_loss=_mean(cl),
+            actor_loss=_mean(al),
+            q_mean=_mean(qm),
+            seconds=time.perf_counter() - t0,
+        )
+
+    def lr(self) -> tuple[float, float]:
+        """Current learning rates (actor, critic)."""
+        return self.optimizer.param_groups[0]["lr"], self.optimizer.param_groups[1]["lr"]
+
+    def state_dict(self) -> dict[str, Any]:
+        """Loss (networks + targets) and optimiser state, as stored in checkpoints."""
+        return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict` (then step the scheduler to the restored progress)."""
+        self.loss.load_state_dict(state["loss"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scheduler.step()
+
+
+def _mean(xs: list[torch.Tensor]) -> float:
+    return float(torch.stack(xs).mean()) if xs else math.nan

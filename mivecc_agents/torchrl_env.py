@@ -1,0 +1,238 @@
+"""Native TorchRL env on :class:`mivecc_env.batched.BatchedMiVeCCEnv` (B envs, one simulator).
+
+:class:`MiVeCCTorchEnv` is an ``EnvBase`` with ``batch_size=[B]`` and the groups and keys that
+``PettingZooWrapper(mivecc_v0.parallel_env(...))`` gives (``docs/training.md``), without the
+per-agent dicts, the ``SerialEnv`` copies and one ``torch.tensor`` per info key per agent:
+
+=============================  ===========================================  ================
+key                            shape                                        dtype
+=============================  ===========================================  ================
+``(g, "observation")``         ``(B, n_g, K, K, 3)``                        float32
+``(g, "mask")``                ``(B, n_g, K)`` (1: a real decision vehicle)  float32
+``(g, "action")``              ``(B, n_g, K)`` in ``[-a_max, a_max]`` m/s^2  float32
+``(g, "reward")``              ``(B, n_g, 1)``                              float32
+``(g, "done" | "terminated" |  ``(B, n_g, 1)``                              bool
+"truncated")``
+``(g, "info", "mask")``        ``(B, n_g, K)``                              float32
+``(g, "info", term)``          ``(B, n_g)``, ``term`` in ``REWARD_TERMS``   float32
+``(g, "info", summary key)``   ``(B, n_g)`` (``summary_keys``)               float32
+``"done" | "terminated" |      ``(B, 1)``                                   bool
+"truncated"``
+=============================  ===========================================  ================
+
+with ``g`` in ``groups`` (``edge``: ``n_g`` = number of intersections, K = ``k_edge``;
+``cloud``: ``n_g`` = 1, K = ``k_cloud``). ``(g, "mask")`` is the same tensor as
+``(g, "info", "mask")`` (the pipeline of ``training.make_env`` copies it there).
+
+Partial resets: TorchRL passes ``"_reset"`` (B, 1); only those environments restart
+(:meth:`BatchedMiVeCCEnv.reset_at`, each with the next seed of its own sequence) while the
+others keep their state. Seeds: ``set_seed(s)`` seeds environment ``b`` with ``s + b`` exactly
+as ``PettingZooWrapper.set_seed(s + b)`` seeds a B = 1 env (the seeded reset, then the next
+reset draws the next seed), so environment ``b`` gives the same observations as that wrapper.
+
+Observations and masks are wrapped with ``torch.from_numpy`` (no copy); rewards and summaries
+are converted to float32 (one small copy per key and step). Only graphs of the groups asked
+for are built: a stage-I run with ``groups=("edge",)`` builds no cloud graph.
+
+Needs the ``train`` extra (torch, torchrl); :mod:`mivecc_env` itself never imports torch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from mivecc_env.metrics import SUMMARY_KEYS
+
+__all__ = ["GROUPS", "MiVeCCTorchEnv"]
+
+GROUPS: tuple[str, ...] = ("edge", "cloud")
+
+
+class MiVeCCTorchEnv(EnvBase):
+    """B MiVeCC environments as one TorchRL env (see the module docstring).
+
+    Args:
+        batch_size: number of environments B (default: ``len(densities)``, else 1).
+        densities: demand of each environment [veh/lane/h], B values (one batch may mix
+            densities); default: the config's density for all.
+        groups: agent groups to expose, a subset of ``("edge", "cloud")`` (default both).
+        summary_keys: episode-summary keys to put under ``(g, "info")`` (default all of
+            :data:`mivecc_env.metrics.SUMMARY_KEYS`; ``()`` for none).
+        seed: if given, :meth:`set_seed` is called with it.
+        config: a :class:`~mivecc_env.config.MiVeCCConfig`; ``**overrides`` replace fields
+            (``scheme``, ``rows``, ``max_steps``...).
+        device: torch device of the tensors (CPU only is tested).
+
+    Raises:
+        ConfigError: a bad config value, batch size or density (from the batched env).
+        ValueError: an unknown group or summary key.
+    """
+
+    def __init__(
+        self,
+        batch_size: int | None = None,
+        *,
+        densities: Sequence[float] | None = None,
+        groups: Sequence[str] = GROUPS,
+        summary_keys: Sequence[str] = SUMMARY_KEYS,
+        seed: int | None = None,
+        config: Any = None,
+        device: Any = "cpu",
+        **overrides: Any,
+    ) -> None:
+        groups = tuple(groups)
+        if not groups or not set(groups) <= set(GROUPS):
+            raise ValueError(f"groups: must be a non-empty subset of {GROUPS}, got {groups!r}")
+        bad = sorted(set(summary_keys) - set(SUMMARY_KEYS))
+        if bad:
+            raise ValueError(f"summary_keys: unknown {bad}; known: {list(SUMMARY_KEYS)}")
+        if batch_size is None:
+            batch_size = len(densities) if densities is not None else 1
+        self._batched = BatchedMiVeCCEnv(
+            config, int(batch_size), densities=densities, observe=set(groups), **overrides
+        )
+        b = self._batched.batch_size
+        super().__init__(device=device, batch_size=torch.Size([b]))
+        self.groups = groups
+        self.summary_keys = tuple(summary_keys)
+        c = self._batched.config
+        self.config = c
+        self._n = {"edge": c.n_intersections, "cloud": 1}
+        self._k = {"edge": c.k_edge, "cloud": c.k_cloud}
+        self.group_map = {
+            g: [f"{g}_{i}" for i in range(self._n[g])] for g in groups
+        }
+        self._make_specs()
+        if seed is not None:
+            self.set_seed(seed)
+
+    # ------------------------------------------------------------------------------------
+    @property
+    def batched_env(self) -> BatchedMiVeCCEnv:
+        """The numpy batched env underneath."""
+        return self._batched
+
+    def _make_specs(self) -> None:
+        b = self.batch_size[0]
+        c = self.config
+        obs, act, rew, done = {}, {}, {}, {}
+        for g in self.groups:
+            n, k = self._n[g], self._k[g]
+            info = {"mask": Unbounded((b, n, k), dtype=torch.float32)}
+            for key in (*REWARD_TERMS, *self.summary_keys):
+                info[key] = Unbounded((b, n), dtype=torch.float32)
+            obs[g] = Composite(
+                observation=Bounded(-1.0, 1.0, (b, n, k, k, 3), dtype=torch.float32),
+                mask=Bounded(0.0, 1.0, (b, n, k), dtype=torch.float32),
+                info=Composite(info, shape=(b, n)),
+                shape=(b, n),
+            )
+            act[g] = Composite(
+                action=Bounded(-c.a_max_mps2, c.a_max_mps2, (b, n, k), dtype=torch.float32),
+                shape=(b, n),
+            )
+            rew[g] = Composite(reward=Unbounded((b, n, 1), dtype=torch.float32), shape=(b, n))
+            done[g] = Composite(
+                {
+                    key: Categorical(2, (b, n, 1), dtype=torch.bool)
+                    for key in ("done", "terminated", "truncated")
+                },
+                shape=(b, n),
+            )
+        for key in ("done", "terminated", "truncated"):
+            done[key] = Categorical(2, (b, 1), dtype=torch.bool)
+        self.observation_spec = Composite(obs, shape=(b,))
+        self.action_spec = Composite(act, shape=(b,))
+        self.reward_spec = Composite(rew, shape=(b,))
+        self.done_spec = Composite(done, shape=(b,))
+
+    # ------------------------------------------------------------------------------------
+    def _set_seed(self, seed: int | None) -> None:
+        # As PettingZooWrapper does: a seeded reset now; the next reset draws the next seed.
+        self._batched.reset(seed=None if seed is None else int(seed))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        mask = _reset_mask(tensordict, self.groups, self.batch_size[0])
+        if mask is None or mask.all():
+            step = self._batched.reset(seed=kwargs.get("seed"))
+        else:
+            step = self._batched.reset_at(mask)
+        return self._pack(step, with_reward=False)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        edge = cloud = None
+        if "edge" in self.groups:
+            edge = tensordict.get(("edge", "action")).detach().cpu().numpy()
+        if "cloud" in self.groups:
+            cloud = tensordict.get(("cloud", "action")).detach().cpu().numpy()[:, 0]
+        step = self._batched.step(
+            None if edge is None else edge.astype(np.float64, copy=False),
+            None if cloud is None else cloud.astype(np.float64, copy=False),
+        )
+        return self._pack(step, with_reward=True)
+
+    # ------------------------------------------------------------------------------------
+    def _pack(self, step: BatchStep, with_reward: bool) -> TensorDictBase:
+        b = self.batch_size[0]
+        summary = self._batched.summary() if self.summary_keys else {}
+        trunc = torch.from_numpy(step.truncated).unsqueeze(-1)  # (B, 1)
+        term = torch.from_numpy(step.terminated).unsqueeze(-1)
+        done = trunc | term
+        out: dict[str, Any] = {"done": done, "terminated": term, "truncated": trunc}
+        for g in self.groups:
+            n = self._n[g]
+            if g == "edge":
+                o, m, r, terms = step.edge_obs, step.edge_mask, step.edge_reward, step.edge_terms
+            else:  # one cloud agent: keep the agent dimension
+                o, m = step.cloud_obs[:, None], step.cloud_mask[:, None]
+                r = step.cloud_reward[:, None]
+                terms = {k: v[:, None] for k, v in step.cloud_terms.items()}
+            mask = torch.from_numpy(m)
+            info = {k: _f32(terms[k]) for k in REWARD_TERMS}
+            for key in self.summary_keys:
+                info[key] = _f32(summary[key])[:, None].expand(b, n)
+            info["mask"] = mask
+            td = {
+                "observation": torch.from_numpy(o),
+                "mask": mask,
+                "info": TensorDict(info, batch_size=(b, n)),
+                "done": done[:, None].expand(b, n, 1),
+                "terminated": term[:, None].expand(b, n, 1),
+                "truncated": trunc[:, None].expand(b, n, 1),
+            }
+            if with_reward:
+                td["reward"] = _f32(r).unsqueeze(-1)
+            out[g] = TensorDict(td, batch_size=(b, n))
+        return TensorDict(out, batch_size=(b,), device=self.device)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        """Nothing to release (numpy arrays only)."""
+        self.is_closed = True
+
+
+def _f32(a: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.asarray(a, dtype=np.float32))
+
+
+def _reset_mask(
+    tensordict: TensorDictBase | None, groups: Sequence[str], batch: int
+) -> np.ndarray | None:
+    """(B,) bool of the environments to reset from the ``"_reset"`` entries (None: all)."""
+    if tensordict is None:
+        return None
+    found = None
+    for key in ("_reset", *((g, "_reset") for g in groups)):
+        val = tensordict.get(key, None)
+        if val is None:
+            continue
+        val = val.reshape(batch, -1).any(-1)
+        found = val if found is None else found | val
+    return None if found is None else found.cpu().numpy()
