@@ -15,14 +15,17 @@ key                            shape                                        dtyp
 "truncated")``
 ``(g, "info", "mask")``        ``(B, n_g, K)``                              float32
 ``(g, "info", term)``          ``(B, n_g)``, ``term`` in ``REWARD_TERMS``   float32
-``(g, "info", summary key)``   ``(B, n_g)`` (``summary_keys``)               float32
+``(s, "info", summary key)``   ``(B, 1)`` (``summary_keys``)                 float32
 ``"done" | "terminated" |      ``(B, 1)``                                   bool
 "truncated"``
 =============================  ===========================================  ================
 
 with ``g`` in ``groups`` (``edge``: ``n_g`` = number of intersections, K = ``k_edge``;
 ``cloud``: ``n_g`` = 1, K = ``k_cloud``). ``(g, "mask")`` is the same tensor as
-``(g, "info", "mask")`` (the pipeline of ``training.make_env`` copies it there).
+``(g, "info", "mask")`` (the pipeline of ``training.make_env`` copies it there). The episode
+summary (whole network) is in group ``s`` = ``cloud``, as the ParallelEnv puts it in
+``cloud_0``'s info; when only ``edge`` is exposed, it is under ``edge`` (broadcast to the
+``n_edge`` agents without a copy).
 
 Partial resets: TorchRL passes ``"_reset"`` (B, 1); only those environments restart
 (:meth:`BatchedMiVeCCEnv.reset_at`, each with the next seed of its own sequence) while the
@@ -44,11 +47,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.metrics import SUMMARY_KEYS
 
 __all__ = ["GROUPS", "MiVeCCTorchEnv"]
@@ -110,6 +113,8 @@ class MiVeCCTorchEnv(EnvBase):
         self.group_map = {
             g: [f"{g}_{i}" for i in range(self._n[g])] for g in groups
         }
+        #: The group whose infos hold the episode summary.
+        self.summary_group = "cloud" if "cloud" in groups else "edge"
         self._make_specs()
         if seed is not None:
             self.set_seed(seed)
@@ -127,7 +132,8 @@ class MiVeCCTorchEnv(EnvBase):
         for g in self.groups:
             n, k = self._n[g], self._k[g]
             info = {"mask": Unbounded((b, n, k), dtype=torch.float32)}
-            for key in (*REWARD_TERMS, *self.summary_keys):
+            summary = self.summary_keys if g == self.summary_group else ()
+            for key in (*REWARD_TERMS, *summary):
                 info[key] = Unbounded((b, n), dtype=torch.float32)
             obs[g] = Composite(
                 observation=Bounded(-1.0, 1.0, (b, n, k, k, 3), dtype=torch.float32),
@@ -197,8 +203,9 @@ class MiVeCCTorchEnv(EnvBase):
                 terms = {k: v[:, None] for k, v in step.cloud_terms.items()}
             mask = torch.from_numpy(m)
             info = {k: _f32(terms[k]) for k in REWARD_TERMS}
-            for key in self.summary_keys:
-                info[key] = _f32(summary[key])[:, None].expand(b, n)
+            if g == self.summary_group:
+                for key in self.summary_keys:
+                    info[key] = _f32(summary[key])[:, None].expand(b, n)
             info["mask"] = mask
             td = {
                 "observation": torch.from_numpy(o),

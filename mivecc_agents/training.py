@@ -36,7 +36,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 
 from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
-from mivecc_agents.learner import DDPGLearner, UpdateStats
+from mivecc_agents.learner import DDPGLearner, UpdateStats, make_loss
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
 
@@ -44,7 +44,11 @@ __all__ = [
     "GROUPS",
     "STAGES",
     "TrainingError",
+    "TrainingInterrupted",
+    "env_factory",
     "make_env",
+    "make_loss",
+    "make_native_env",
     "make_policy",
     "plot_learning_curve",
     "train",
@@ -551,7 +555,6 @@ def _train(
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     total_frames = int(frames) if frames is not None else 50 * p.episode_steps * len(dens)
-    fpb = p.frames_per_batch * n_envs
     torch.manual_seed(seed)
 
     # --- networks, learner ------------------------------------------------------------------
@@ -606,6 +609,8 @@ def _train(
         noise.step(state["frames"])
     policy = make_policy(stage, actor, noise, frozen_edge, groups=env_groups(probe))
     remaining = max(0, total_frames - state["frames"])
+    # steps of each env per iteration: the preset's, fewer if the run is shorter than that
+    fpb = n_envs * max(1, min(p.frames_per_batch, -(-remaining // n_envs)))
 
     # --- replay buffer, sized on purpose ---------------------------------------------------
     keys = _buffer_keys(group)

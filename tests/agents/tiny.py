@@ -11,14 +11,16 @@ TINY = get_preset("stable").replace(
     name="tiny",
     frames_per_batch=50,
     warmup_frames=48,
+    batch_size=48,
     updates_per_frame=0.1,
     episode_steps=120,
     buffer_size=500,
+    envs_per_density=2,
 )
 
 
 def train_tiny_edge(out_dir: Path, **kwargs: Any) -> Path:
-    """A 200-frame stage-I run on 1x1 at 1500 veh/lane/h; returns the checkpoint path."""
+    """A 200-frame stage-I run on 1x1 at 1500 veh/lane/h (2 envs); returns the checkpoint."""
     from mivecc_agents.training import train
 
     return train("edge", TINY, frames=200, rows=1, cols=1, densities=1500, seed=0,
