@@ -109,13 +109,17 @@ def collect(stage: str, path: str, frames: int, steps_per_env: int, envs_per_den
     return {"frames": n, "seconds": dt, "frames_per_s": n / dt, "n_envs": n_envs}
 
 
-def learn(stage: str, path: str, data: list, seconds: float) -> dict[str, float]:
-    """Updates/s and samples/s of ``DDPGLearner.update`` on collected data (``seconds`` long)."""
+def learn(stage: str, path: str, data: list, seconds: float, threads: int | None = None
+          ) -> dict[str, float]:
+    """Updates/s and samples/s of ``DDPGLearner.update`` on collected data (``seconds`` long),
+    at ``threads`` (default: the path's setting)."""
     from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
     group = training.STAGES[stage]["group"]
     _, _, _, actor, critic, p = _setup(stage, path, 1)
-    torch.set_num_threads(1 if path == "old" else _threads(stage))
+    if threads is None:
+        threads = 1 if path == "old" else _threads(stage)
+    torch.set_num_threads(threads)
     keys = training._buffer_keys(group)
     flat = torch.cat([d.select(*keys).reshape(-1) for d in data])
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(flat.numel()),
@@ -172,7 +176,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                         "(the new path times 10x as many)")
     parser.add_argument("--envs-per-density", type=int, nargs=2, default=[16, 16],
                         metavar=("EDGE", "CLOUD"), help="new path: environments per density")
+    parser.add_argument("--steps-per-env", type=int, default=100,
+                        help="collection: steps of each env per batch (the preset's 100)")
     parser.add_argument("--learn-seconds", type=float, default=4.0)
+    parser.add_argument("--other-threads", action="store_true",
+                        help="also time the new learner at the thread count not chosen "
+                        "(OMP_WAIT_POLICY=PASSIVE)")
     parser.add_argument("--e2e-frames", type=int, nargs=2, default=[2100, 24000],
                         metavar=("OLD", "NEW"), help="stage-I train() frames (0: skip)")
     parser.add_argument("--e2e-steps-per-env", type=int, nargs=2, default=[100, 100],
@@ -197,12 +206,16 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
             for path in ("old", "new"):
                 frames = args.collect_frames[si] * (1 if path == "old" else 10)
                 keep: list = []
-                steps = 100  # the preset's frames_per_batch (steps per env per batch)
-                c = collect(stage, path, frames, steps, epd, keep)
+                c = collect(stage, path, frames, args.steps_per_env, epd, keep)
                 record((stage, path, "collect frames/s"), c["frames_per_s"], c)
                 u = learn(stage, path, keep, args.learn_seconds)
                 record((stage, path, "learner updates/s"), u["updates_per_s"], u)
                 record((stage, path, "learner samples/s"), u["samples_per_s"], u)
+                if path == "new" and args.other_threads:  # the thread count not chosen
+                    other = 2 if _threads(stage) == 1 else 1
+                    u = learn(stage, path, keep, args.learn_seconds, other)
+                    record((stage, path, f"learner samples/s, {other} thread(s)"),
+                           u["samples_per_s"], u)
         if "edge" in args.stages:
             for i, path in enumerate(("old", "new")):
                 if args.e2e_frames[i] > 0:
@@ -215,8 +228,10 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     rows = []
     for stage in args.stages:
         for measure in ("collect frames/s", "learner updates/s", "learner samples/s",
+                        "learner samples/s, 1 thread(s)", "learner samples/s, 2 thread(s)",
                         "end-to-end frames/s"):
-            old, new = results.get((stage, "old", measure)), results.get((stage, "new", measure))
+            new = results.get((stage, "new", measure))
+            old = results.get((stage, "old", measure.split(",")[0]))
             if not old or not new:
                 continue
             mo, mn = _median(old), _median(new)
