@@ -420,7 +420,7 @@ def env_factory(
 #: Groups the native env exposes in each stage (stage I needs no cloud graph).
 _STAGE_GROUPS = {"EE": ("edge",), "EEC": ("edge", "cloud")}
 #: Episode-summary keys the training log reads.
-_LOG_KEYS = ("avg_travel_velocity_mps", "collisions")
+_LOG_KEYS = ("avg_travel_velocity_mps", "collisions", "throughput")
 
 
 def make_native_env(
@@ -848,6 +848,7 @@ def _metrics(
     reward = nxt[group, "reward"]
     done = nxt["done"].reshape(-1)
     vel = _summary_entry(nxt, group, "avg_travel_velocity_mps")  # (..., n_agents)
+    vel = torch.where(_summary_entry(nxt, group, "throughput") > 0, vel, math.nan)  # none exited
     coll = _summary_entry(nxt, group, "collisions")
     row: dict[str, float] = {
         "iteration": state["iteration"],
@@ -880,10 +881,10 @@ def _metrics(
         owner = torch.as_tensor(env_density)
         for i, d in enumerate(densities):
             sel = owner == i
-            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_env[sel, -1].mean())
+            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_env[sel, -1].nanmean())
             ended = per_env[sel][done_e[sel]]
             row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
-                float(ended.mean()) if ended.numel() else math.nan
+                float(ended.nanmean()) if ended.numel() else math.nan
             )
     else:  # layout unknown (e.g. flattened by collector workers): one value for all densities
         flat = vel.reshape(-1, vel.shape[-1])[:, 0]
@@ -891,7 +892,7 @@ def _metrics(
         for d in densities:
             row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(flat[-1])
             row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
-                float(ended.mean()) if ended.numel() else math.nan
+                float(ended.nanmean()) if ended.numel() else math.nan
             )
     per_density = [row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in densities]
     row["avg_velocity_mps"] = sum(per_density) / len(densities)

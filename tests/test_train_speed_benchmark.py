@@ -14,7 +14,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 @pytest.mark.slow  # ~15 s idle, ~45 s on the shared box (both training paths are built)
 def test_train_speed_smoke(tmp_path: Path) -> None:
     import torch
-
     import train_speed
 
     threads = torch.get_num_threads()
