@@ -273,8 +273,8 @@ def evaluate_batch(
         _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
     overrides = dict(config_overrides)
-    if scheme == "signalized":
-        overrides.update(scheme="E", control="signalized")
+    if scheme in COMPARATORS:
+        overrides.update(scheme="E", **COMPARATORS[scheme])
     else:
         overrides["scheme"] = scheme
     pairs = [(float(d), int(s)) for d in dens for s in seeds]
@@ -332,7 +332,8 @@ def evaluate_batch(
     summary = env.summary()
     results = []
     for j, (density, seed) in enumerate(pairs):
-        result: dict[str, Any] = {k: float(v[j]) for k, v in summary.items()}
+        result: dict[str, Any] = mark_no_data({k: float(v[j]) for k, v in summary.items()},
+                                              cfg)
         result.update(
             steps=int(steps),
             steps_per_s=float(b * steps / wall) if wall > 0 else math.inf,
