@@ -32,7 +32,7 @@ def _train_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
         (["--frames", "150", "--density", "900", "1500"], "--frames: must be an integer >= 200"),
         (["--rows", "0", "--cols", "0"], "--rows: must be an integer in [1, 16], got 0"),
         (["--cols", "0"], "--cols: must be an integer in [1, 16], got 0"),
-        (["--buffer-size", "0"], "--buffer-size: must be an integer >= 48"),
+        (["--buffer-size", "0"], "--buffer-size: must be an integer >= 192"),  # minibatch
         (["--workers", "0"], "--workers: must be an integer >= 1, got 0"),
         (["--threads", "0"], "--threads: must be an integer >= 1, got 0"),
         (["--episode-steps", "0"], "--episode-steps: must be an integer >= 1"),

@@ -72,8 +72,8 @@ def test_cli_resume_from_shipped_policy(tmp_path: Path, capsys) -> None:
     edge = pretrained_path("edge")
     if edge is None:
         pytest.skip("no shipped edge policy")
-    code = main(["train", "--stage", "edge", "--resume", str(edge), "--frames", "40",
-                 "--episode-steps", "20", "--envs-per-density", "1", "--density", "900",
+    code = main(["train", "--stage", "edge", "--resume", str(edge), "--frames", "100",
+                 "--episode-steps", "50", "--envs-per-density", "1", "--density", "900",
                  "--out", str(tmp_path), "--no-progress"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
@@ -85,7 +85,7 @@ def test_cli_resume_from_wrong_kind_is_one_line_exit_2(tmp_path: Path, capsys) -
     cloud = pretrained_path("cloud")
     if cloud is None:
         pytest.skip("no shipped cloud policy")
-    code = main(["train", "--stage", "edge", "--resume", str(cloud), "--frames", "40",
+    code = main(["train", "--stage", "edge", "--resume", str(cloud), "--frames", "100",
                  "--out", str(tmp_path), "--no-progress"])
     err = capsys.readouterr().err.strip()
     assert code == 2
