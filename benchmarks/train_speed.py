@@ -6,7 +6,8 @@ is meaningful on a shared machine:
 * ``old``: ``PettingZooWrapper`` envs in a ``SerialEnv`` (one env per density), the paper's
   minibatch 48 at 0.5 updates per frame (the training defaults before the native env);
 * ``new``: the native batched TorchRL env (``MiVeCCTorchEnv``, ``--envs-per-density``
-  environments per density in one simulator) and the default preset (minibatch 192 at 0.125
+  environments per density in one simulator; default 16 x 3 densities and 48 x 1, what the
+  default preset's 48 environments give) and the default preset (minibatch 192 at 0.125
   updates per frame: the same 24 replayed samples per frame).
 
 Measurements (each with the training code itself: ``training.env_factory``,
@@ -174,7 +175,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--collect-frames", type=int, nargs=2, default=[1200, 300],
                         metavar=("EDGE", "CLOUD"), help="old-path frames timed per repeat "
                         "(the new path times 10x as many)")
-    parser.add_argument("--envs-per-density", type=int, nargs=2, default=[16, 16],
+    parser.add_argument("--envs-per-density", type=int, nargs=2, default=[16, 48],
                         metavar=("EDGE", "CLOUD"), help="new path: environments per density")
     parser.add_argument("--steps-per-env", type=int, default=100,
                         help="collection: steps of each env per batch (the preset's 100)")

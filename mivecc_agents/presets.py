@@ -46,8 +46,12 @@ class TrainPreset:
             ``frames_per_batch x`` the number of environments frames, then learns).
         updates_per_frame: Gradient updates per collected frame (``updates_per_frame x
             batch_size`` is the number of replayed samples per collected frame).
-        envs_per_density: Environments per training density in the native batched env
-            (``B = envs_per_density x len(densities)``; the ``pettingzoo`` backend has one).
+        envs: Environments of the native batched env, split evenly across the training
+            densities (``envs // len(densities)`` each, at least 1): stage I with 3 densities
+            runs 3 x 16, stage II with one density 48 (the ``pettingzoo`` backend has one
+            environment per density).
+        envs_per_density: Environments per density, overriding ``envs`` (``None``: from
+            ``envs``).
         warmup_frames: Transitions in the buffer before learning starts.
         buffer_size: Replay capacity [transitions] (capped by ``buffer_memory_mb``).
         buffer_memory_mb: Memory cap of the replay storage [MiB].
@@ -66,7 +70,8 @@ class TrainPreset:
     sigma_anneal_fraction: float = 0.8
     frames_per_batch: int = 100
     updates_per_frame: float = 0.5
-    envs_per_density: int = 16
+    envs: int = 48
+    envs_per_density: int | None = None
     warmup_frames: int = 480
     buffer_size: int = 100_000
     buffer_memory_mb: int = 1024
@@ -143,7 +148,8 @@ def add_train_arguments(parser: Any) -> None:
                         help="native: batched TorchRL env (default); pettingzoo: "
                         "PettingZooWrapper + SerialEnv, one env per density")
     parser.add_argument("--envs-per-density", type=int, default=None,
-                        help="native backend: environments per density (default: preset's)")
+                        help="native backend: environments per density (default: the "
+                        "preset's 48 environments split across the densities)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+",
                         action="extend", default=[], help="other env config fields")

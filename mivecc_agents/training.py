@@ -523,7 +523,8 @@ def _train(
         save_every: Save a checkpoint every this many iterations.
         backend: ``"native"`` (batched TorchRL env, default) or ``"pettingzoo"`` (the
             PettingZooWrapper + SerialEnv path, one env per density).
-        envs_per_density: Native backend: environments per density (default: the preset's).
+        envs_per_density: Native backend: environments per density (default: the preset's
+            ``envs_per_density``, else its ``envs`` split across the densities).
 
     Returns:
         Path of the checkpoint written at the end.
@@ -550,6 +551,8 @@ def _train(
         "cols": cols,
         "max_steps": p.episode_steps,
     }
+    if p.envs_per_density is None:
+        p = p.replace(envs_per_density=max(1, p.envs // len(dens)))
     env_fn, env_density = env_factory(backend, dens, overrides, scheme, p.envs_per_density, seed)
     n_envs = len(env_density)
     out_dir = Path(out_dir)
