@@ -127,3 +127,17 @@ def test_a_collision_shows_in_the_minimum_distance() -> None:
     s = episode_summary(sim)
     assert s["collisions"] == 1.0
     assert s["min_distance_m"] < 2.0
+
+
+def test_partial_reset_clears_the_new_measures_of_that_environment_only() -> None:
+    sim = Simulator(MiVeCCConfig(rows=1, cols=1, density_vplh=2100), batch_size=2, seed=0)
+    for _ in range(300):
+        sim.step()
+    before = episode_summary(sim, 1)
+    assert before["released_passed"] > 0 and before["pet_samples"] > 0
+    sim.reset_at([0], seeds=[5])
+    fresh = episode_summary(sim, 0)
+    assert fresh["released_passed"] == fresh["pet_samples"] == 0.0
+    assert fresh["released_velocity_mps"] == 0.0
+    assert fresh["min_ttc_s"] == fresh["min_pet_s"] == fresh["min_distance_m"] == np.inf
+    assert episode_summary(sim, 1) == before
