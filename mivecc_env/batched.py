@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from mivecc_env import metrics
+from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
@@ -63,6 +64,10 @@ class BatchStep:
         terminated: (B,) bool (always False: continuous flow).
         truncated: (B,) bool, the environment's clock reached ``max_steps``.
         episode_steps: (B,) int64, steps of each environment since its own reset.
+        signal_obs: (B, n_int, D) float32 signal-agent observations
+            (:mod:`mivecc_env.signal_agents`), ``None`` unless ``signal_agents``.
+        signal_reward: (B, n_int) float64 signal-agent rewards (or ``None``).
+        signal_terms: ``SIGNAL_REWARD_TERMS`` -> (B, n_int) float64 (or ``None``).
     """
 
     edge_obs: Float32Array | None
@@ -76,6 +81,9 @@ class BatchStep:
     terminated: BoolArray
     truncated: BoolArray
     episode_steps: NDArray[np.int64]
+    signal_obs: Float32Array | None = None
+    signal_reward: FloatArray | None = None
+    signal_terms: dict[str, FloatArray] | None = None
 
     @property
     def done(self) -> BoolArray:
@@ -94,9 +102,13 @@ class BatchedMiVeCCEnv:
             ``density_vplh`` for all).
         observe: which state graphs to build, a subset of ``{"edge", "cloud"}``; default by
             scheme: ``E``/``EE`` -> ``{"edge"}``, ``EEC`` -> ``{"edge", "cloud"}``.
+        signal_agents: add the signal agents' arrays (``control="signalized"`` only; see
+            :mod:`mivecc_env.signal_agents`).
+        signal_reward: their reward, ``"queue"`` or ``"pressure"``.
 
     Raises:
-        ConfigError: a bad config field, ``batch_size``, ``densities`` or ``observe``.
+        ConfigError: a bad config field, ``batch_size``, ``densities``, ``observe`` or
+            ``signal_agents`` without ``control="signalized"``.
     """
 
     def __init__(
@@ -106,6 +118,8 @@ class BatchedMiVeCCEnv:
         *,
         densities: Sequence[float] | ArrayLike | None = None,
         observe: Sequence[str] | set[str] | frozenset[str] | None = None,
+        signal_agents: bool = False,
+        signal_reward: str = "queue",
         **config_overrides: Any,
     ) -> None:
         if config is not None and not isinstance(config, MiVeCCConfig):
@@ -121,6 +135,8 @@ class BatchedMiVeCCEnv:
         if isinstance(observe, str) or not set(observe) <= GRAPHS:
             raise ConfigError(f"observe: must be a subset of {sorted(GRAPHS)}, got {observe!r}")
         self.observe = frozenset(observe)
+        self.signal_agents = signal_agents_mod.check_options(c, signal_agents, signal_reward)
+        self.signal_reward = signal_reward
         try:
             self.sim = Simulator(c, batch_size=self.batch_size, seed=0, densities=densities)
         except ValueError as err:
@@ -210,13 +226,17 @@ class BatchedMiVeCCEnv:
             keep[envs] = False
             for new, old in ((out.edge_terms, last.edge_terms), (out.cloud_terms, last.cloud_terms),
                              ({"r": out.edge_reward}, {"r": last.edge_reward}),
-                             ({"r": out.cloud_reward}, {"r": last.cloud_reward})):
+                             ({"r": out.cloud_reward}, {"r": last.cloud_reward}),
+                             (out.signal_terms or {}, last.signal_terms or {}),
+                             ({"r": out.signal_reward} if self.signal_agents else {},
+                              {"r": last.signal_reward})):
                 for k in new:
                     new[k][keep] = old[k][keep]
         return out
 
     def step(
-        self, edge_action: ArrayLike | None = None, cloud_action: ArrayLike | None = None
+        self, edge_action: ArrayLike | None = None, cloud_action: ArrayLike | None = None,
+        signal_action: ArrayLike | None = None,
     ) -> BatchStep:
         """Apply the coordinators' accelerations and advance every environment one step.
 
@@ -226,21 +246,32 @@ class BatchedMiVeCCEnv:
             cloud_action: (B, K_cloud) accelerations [m/s^2] of the cloud node's columns, or
                 ``None``. Actions of padded columns are ignored. Under scheme ``E`` both are
                 ignored, under ``EE`` the cloud action is.
+            signal_action: (B, n_int) integer phase each signal agent wants green (0
+                east-west, 1 north-south), -1 where ``signal_controller`` decides; ``None``:
+                it decides everywhere. Needs ``signal_agents=True``.
 
         Raises:
             RuntimeError: ``reset`` has not been called.
             ValueError: an action of the wrong shape, not finite, or outside
-                ``[-a_max, a_max]`` (the message names the argument).
+                ``[-a_max, a_max]`` (the message names the argument); a signal action
+                without ``signal_agents``, of the wrong shape, not integer or out of range.
         """
         edge = self._checked(edge_action, "edge_action", (self.batch_size, self.n_edge,
                                                           self.k_edge))
         cloud = self._checked(cloud_action, "cloud_action", (self.batch_size, self.k_cloud))
-        return self.step_commands(edge, cloud)
+        signal = None
+        if signal_action is not None:
+            if not self.signal_agents:
+                raise ValueError("signal_action: needs signal_agents=True")
+            signal = signal_agents_mod.check_action(signal_action,
+                                                    (self.batch_size, self.n_edge))
+        return self.step_commands(edge, cloud, signal)
 
     # ------------------------------------------------------------------------------------
     # for adapters
     def step_commands(
-        self, edge_action: FloatArray | None, cloud_action: FloatArray | None
+        self, edge_action: FloatArray | None, cloud_action: FloatArray | None,
+        signal_action: NDArray[np.int64] | None = None,
     ) -> BatchStep:
         """:meth:`step` without validation; NaN in an action means "no action" for that column.
 
@@ -260,7 +291,7 @@ class BatchedMiVeCCEnv:
             if self._cloud is None:
                 raise RuntimeError("step: cloud_action given but 'cloud' is not observed")
             cloud_cmd = self._commands(self._cloud, cloud_action[:, None, :])
-        events = sim.step(edge_cmd, cloud_cmd)
+        events = sim.step(edge_cmd, cloud_cmd, signal_phase=signal_action)
         return self._observe_and_pack(events)
 
     def _commands(self, graphs: StateGraphs, action: FloatArray) -> FloatArray:
@@ -291,6 +322,10 @@ class BatchedMiVeCCEnv:
         edge_terms, cloud_terms = self._reward_terms(events)
         steps = sim.env_steps
         edge, cloud = self._edge, self._cloud
+        signal_obs = signal_reward = signal_terms = None
+        if self.signal_agents:
+            signal_obs, signal_reward, signal_terms = signal_agents_mod.observe(
+                sim, self.signal_reward, events is not None)
         self._last = BatchStep(
             edge_obs=None if edge is None else edge.obs,
             edge_mask=None if edge is None else edge.mask,
@@ -303,6 +338,9 @@ class BatchedMiVeCCEnv:
             terminated=np.zeros(b, dtype=bool),
             truncated=steps >= c.max_steps,
             episode_steps=steps,
+            signal_obs=signal_obs,
+            signal_reward=signal_reward,
+            signal_terms=signal_terms,
         )
         return self._last
 

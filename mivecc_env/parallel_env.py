@@ -21,6 +21,11 @@ Action spaces:
     (its vehicles follow the on-board rules). An unknown agent, a wrong shape, a NaN/inf or a
     value outside the box raises ``ValueError`` naming the agent and the expected box.
 
+Signal agents:
+    With ``control="signalized"`` and ``signal_agents=True``, agents ``signal_i`` follow
+    ``cloud_0``: ``Discrete(2)`` phase actions, a ``(15,)`` float32 observation and a queue or
+    pressure reward (see :mod:`mivecc_env.signal_agents`).
+
 Rewards (named terms in ``infos[agent]``):
     ``edge_i``: ``reward_sv`` = ``reward_sv_weight`` x mean SV of its decision vehicles,
     ``reward_velocity`` = mean ``(v - reward_v_ref_mps)`` of the vehicles in its control area,
@@ -70,6 +75,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from mivecc_env import metrics
+from mivecc_env import signal_agents as sig
 from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim.checks import check_seed
@@ -115,6 +121,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         self,
         config: MiVeCCConfig | None = None,
         render_mode: str | None = None,
+        signal_agents: bool = False,
+        signal_reward: str = "queue",
         **overrides: Any,
     ) -> None:
         if config is not None and not isinstance(config, MiVeCCConfig):
@@ -128,11 +136,16 @@ class MiVeCCParallelEnv(ParallelEnv):
         self.render_mode = render_mode
         self._viewer: HumanViewer | None = None
         # Every agent has an observation, so both graphs are built whatever the scheme.
-        self.batched = BatchedMiVeCCEnv(self.config, 1, observe={"edge", "cloud"})
+        self.batched = BatchedMiVeCCEnv(self.config, 1, observe={"edge", "cloud"},
+                                        signal_agents=signal_agents,
+                                        signal_reward=signal_reward)
         c = self.config
         n = c.n_intersections
         self.edge_agents = [edge_agent(i) for i in range(n)]
-        self.possible_agents = [*self.edge_agents, CLOUD_AGENT]
+        self.signal_agents = ([sig.signal_agent(i) for i in range(n)]
+                              if self.batched.signal_agents else [])
+        self._signal_index = {a: i for i, a in enumerate(self.signal_agents)}
+        self.possible_agents = [*self.edge_agents, CLOUD_AGENT, *self.signal_agents]
         self.agents: list[str] = []
         self._possible = frozenset(self.possible_agents)
         self._edge_index = {a: i for i, a in enumerate(self.edge_agents)}
@@ -144,6 +157,10 @@ class MiVeCCParallelEnv(ParallelEnv):
             a: spaces.Box(-c.a_max_mps2, c.a_max_mps2, (k,), dtype=np.float32)
             for a, k in self._k.items()
         }
+        low, high = sig.observation_bounds(c)
+        for a in self.signal_agents:
+            self._obs_spaces[a] = spaces.Box(low, high, dtype=np.float32)
+            self._act_spaces[a] = spaces.Discrete(sig.N_PHASES)
         self.state_space = spaces.Box(-1.0, 1.0, (c.k_cloud, c.k_cloud, 3), dtype=np.float32)
         # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
         self._a_limit = c.a_max_mps2 + 1e-6
@@ -164,11 +181,13 @@ class MiVeCCParallelEnv(ParallelEnv):
         return self.batched._cloud
 
     def observation_space(self, agent: str) -> spaces.Box:
-        """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call)."""
+        """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call);
+        a signal agent's is ``Box(low, high, (15,), float32)`` (:mod:`..signal_agents`)."""
         return self._obs_spaces[agent]
 
-    def action_space(self, agent: str) -> spaces.Box:
-        """``Box(-a_max, a_max, (K,), float32)`` of ``agent`` (the same object on every call)."""
+    def action_space(self, agent: str) -> spaces.Space:
+        """``Box(-a_max, a_max, (K,), float32)`` of ``agent`` (the same object on every call);
+        ``Discrete(2)`` (the phase wanted green) for a signal agent."""
         return self._act_spaces[agent]
 
     @functools.cached_property
@@ -206,7 +225,9 @@ class MiVeCCParallelEnv(ParallelEnv):
 
         Args:
             actions: ``agent -> (K,)`` accelerations [m/s^2]; an agent left out sends no
-                action (its vehicles follow the on-board rules).
+                action (its vehicles follow the on-board rules). A signal agent's action is
+                the phase it wants green (0 / 1); one left out leaves its intersection to
+                ``signal_controller``.
 
         Returns:
             ``(observations, rewards, terminations, truncations, infos)``, keyed by agent.
@@ -214,15 +235,17 @@ class MiVeCCParallelEnv(ParallelEnv):
         Raises:
             RuntimeError: ``reset`` has not been called, or the episode has ended.
             ValueError: an unknown agent, or an action of the wrong shape, not finite or
-                outside the action box.
+                outside the action box (a signal agent's: not an integer in {0, 1}).
         """
         if not self.agents:
             raise RuntimeError("step: call reset() first (or again after the episode ended)")
         edge_cols, cloud_cols = self._columns(actions)
-        self._last = out = self.batched.step_commands(edge_cols, cloud_cols)
+        phases = self._phases(actions)
+        self._last = out = self.batched.step_commands(edge_cols, cloud_cols, phases)
         agents = self.agents
-        rewards = dict(zip(agents, [*out.edge_reward[0].tolist(), float(out.cloud_reward[0])],
-                           strict=True))
+        signal_rewards = [] if out.signal_reward is None else out.signal_reward[0].tolist()
+        rewards = dict(zip(agents, [*out.edge_reward[0].tolist(), float(out.cloud_reward[0]),
+                                    *signal_rewards], strict=True))
         truncated = bool(out.truncated[0])
         terminations = dict.fromkeys(agents, False)
         truncations = dict.fromkeys(agents, truncated)
@@ -249,7 +272,7 @@ class MiVeCCParallelEnv(ParallelEnv):
                 f"actions: unknown agents {unknown}; agents are {self.possible_agents}"
             )
         edge_cols = cloud_cols = None
-        edges = [a for a in actions if a != CLOUD_AGENT]
+        edges = [a for a in actions if a in self._edge_index]
         if edges:
             acts = self._checked_batch(edges, actions)
             if len(edges) == len(self.edge_agents) and edges == self.edge_agents:
@@ -260,6 +283,16 @@ class MiVeCCParallelEnv(ParallelEnv):
         if CLOUD_AGENT in actions:
             cloud_cols = self._check_action(CLOUD_AGENT, actions[CLOUD_AGENT])[None]
         return edge_cols, cloud_cols
+
+    def _phases(self, actions: Mapping[str, Any]) -> np.ndarray | None:
+        """(1, n_int) phases of the signal agents (-1 for those left out), ``None`` if none."""
+        acting = [a for a in actions if a in self._signal_index]
+        if not acting:
+            return None
+        phases = np.full((1, len(self.signal_agents)), -1, dtype=np.int64)
+        for a in acting:
+            phases[0, self._signal_index[a]] = sig.check_agent_action(a, actions[a])
+        return phases
 
     def _commands(self, actions: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Per-slot edge and cloud commands (NaN where none) from the agents' actions."""
@@ -319,7 +352,9 @@ class MiVeCCParallelEnv(ParallelEnv):
         """Observation of every live agent (views of the freshly built state graphs)."""
         if not self.agents:
             return {}
-        return dict(zip(self.possible_agents, [*out.edge_obs[0], out.cloud_obs[0]], strict=True))
+        signal = [] if out.signal_obs is None else list(out.signal_obs[0])
+        return dict(zip(self.possible_agents, [*out.edge_obs[0], out.cloud_obs[0], *signal],
+                        strict=True))
 
     def _infos(self, out: BatchStep) -> dict[str, dict]:
         """Per-agent infos: ``mask`` and the reward terms; ``cloud_0`` adds the summary.
@@ -339,6 +374,10 @@ class MiVeCCParallelEnv(ParallelEnv):
         cloud.update({k: float(out.cloud_terms[k][0]) for k in REWARD_TERMS})
         cloud.update(self.summary())
         infos[CLOUD_AGENT] = cloud
+        if out.signal_terms is not None:
+            terms = [out.signal_terms[k][0].tolist() for k in sig.SIGNAL_REWARD_TERMS]
+            for agent, *values in zip(self.signal_agents, *terms, strict=True):
+                infos[agent] = dict(zip(sig.SIGNAL_REWARD_TERMS, values, strict=True))
         return infos
 
     # ------------------------------------------------------------------------------------
