@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from mivecc_env import metrics
 from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
+from mivecc_env.sim import edge_selection, sections
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
 from mivecc_env.sim.virtual_lane import density_indicator
@@ -309,13 +310,15 @@ class BatchedMiVeCCEnv:
         view = sim.view
         v = sim.v.ravel()[view.vehicle]
         a = sim.a.ravel()[view.vehicle]
-        self._area = area = sim.network.control_area(view.lane, view.s)
+        # the section's controlled part under sections=True (released code)
+        self._area = area = sections.control_area(sim.network, c, view.lane, view.s)
         # The cloud picks and is rewarded over one population (cloud_pick_population).
         self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population)
         self._v = v
         self._edge = self._cloud = None
         if "edge" in self.observe:
-            self._edge = edge_graphs(sim.network, view, sim.safety.sv, v, a, b, c, area)
+            key = edge_selection.edge_priority(sim.safety.sv, view.env, sim.selection_rngs, c)
+            self._edge = edge_graphs(sim.network, view, key, v, a, b, c, area)
         if "cloud" in self.observe:
             di = density_indicator(view, c.di_n)
             self._cloud = cloud_graphs(sim.network, view, di, v, a, b, c, self._cloud_pop)

@@ -15,11 +15,14 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import inspect
 import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+
+from mivecc_env.model_presets import MODEL_PRESETS
 
 Scheme = Literal["E", "EE", "EEC"]
 Control = Literal["unsignalized", "signalized", "reservation", "optimisation"]
@@ -27,6 +30,9 @@ SignalController = Literal["fixed-time", "actuated", "max-pressure"]
 EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
 CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
+Model = Literal["paper", "released"]
+SameLaneReference = Literal["conflict_point", "centre"]
+EdgeSelection = Literal["lowest_sv", "random"]
 
 
 class ConfigError(ValueError):
@@ -111,8 +117,13 @@ class MiVeCCConfig:
         1.0, 0.0, 10.0, "floor on the gap between consecutive arrivals of one entry lane"
     )
     entry_clearance_m: float = _num(
-        10.0, 2.0, 100.0, "a queued vehicle enters only when the last vehicle of its lane is "
-        "at least this far from the lane start"
+        10.0, 0.0, 100.0, "a queued vehicle enters only when the last vehicle of its lane is "
+        "at least this far from the lane start; 0: no check (released code: a vehicle may be "
+        "placed on top of another, which is then a counted collision)"
+    )
+    entry_accel_mps2: float = _num(
+        0.0, -100.0, 100.0, "acceleration a new vehicle carries at entry (released code: +a_max; "
+        "it enters SV_acc of its first step); within [-a_max, a_max]"
     )
 
     # --- safety value (eqs. safe_value) -------------------------------------------------
@@ -180,6 +191,74 @@ class MiVeCCConfig:
             "doc": "fuse the edge action only when the vehicle's SV exceeds this (released "
             "code: -2); None fuses always (paper)",
         },
+    )
+
+    # --- the released code's behaviours (docs/model.md, divergence table) ----------------
+    model: Model = _choice(
+        "paper", ("paper", "released"),
+        "preset: 'paper' (this project's reading of the paper) or 'released' (the authors' "
+        "released code, mivecc_env/model_presets.py); fields given explicitly win over it",
+    )
+    sections: bool = _choice(
+        False, (False, True), "control (rules, edge) only inside a section (see section_*) and "
+        "less than section_control_end_m past its centre; elsewhere a vehicle speeds up at "
+        "a_max (or jumps to v_max with speed_reset); the edge area is the section's controlled "
+        "part (released code)"
+    )
+    section_after_m: float = _num(
+        10.0, 0.0, 1000.0, "a section ends this far past its intersection centre and the next "
+        "one starts there (so it starts segment_length_m minus this before its centre: 140 m; "
+        "the first reaches back to the lane entry)"
+    )
+    section_control_end_m: float = _num(
+        5.0, 0.0, 1000.0, "a vehicle is controlled while less than this far past its section's "
+        "centre [m] (released code: 5 m, the lane offset)"
+    )
+    section_virtual_lanes: bool = _choice(
+        False, (False, True), "virtual lanes limited to a section's controlled part: own-lane "
+        "vehicles of that part only, crossing vehicles while in the controlled part of the same "
+        "section (released code)"
+    )
+    speed_reset: bool = _choice(
+        False, (False, True), "every vehicle past a section's controlled part (until the next "
+        "section) and on exit links drives at v_max, set instantly, no rule acting (released "
+        "code; breaks the acceleration bound)"
+    )
+    header_rule: bool = _choice(
+        False, (False, True), "the first vehicle of its virtual lane (nothing ahead) gets "
+        "+a_max, overriding rule, edge and cloud (released code)"
+    )
+    sv_d_epsilon: float = _num(
+        0.0, 0.0, 1.0, "SV_d = ln((d / alpha_d)^beta_d + this) (released code: 1e-4, floors "
+        "SV_d at -9.21); 0: the paper's log"
+    )
+    sv_acc_epsilon: float = _num(
+        0.0, 0.0, 1.0, "SV_acc uses ln(min(d_f / d_threshold, alpha_acc)^beta_acc + this) "
+        "(released code: 1e-7); 0: the paper's log"
+    )
+    sv_no_front_distance_m: float | None = field(
+        default=None,
+        metadata={
+            "range": _Range(0.0, 1e6, lo_open=True),
+            "optional": True,
+            "doc": "d_front used by SV_acc when nothing is ahead on the virtual lane [m] "
+            "(released code: 100); None: SV_acc is 0 then",
+        },
+    )
+    ttc_closing_offset_mps: float = _num(
+        0.0, 0.0, 10.0, "TTC = gap / (closing speed + this) [m/s] (released code: 0.1; "
+        "subtracted when the nearest vehicle is behind, as there)"
+    )
+    same_lane_rule_reference: SameLaneReference = _choice(
+        "conflict_point", ("conflict_point", "centre"),
+        "the same-lane rule acts more than same_lane_rule_horizon_m before the next conflict "
+        "point, or before the centre of the vehicle's section (released code; no rule on exit "
+        "links)",
+    )
+    edge_selection: EdgeSelection = _choice(
+        "lowest_sv", ("lowest_sv", "random"),
+        "edge decision vehicles: the k_edge lowest SV of the area, or a random k_edge of it "
+        "(released code at test time; simulator-owned seeded generator)",
     )
 
     # --- scheme and control -------------------------------------------------------------
@@ -313,6 +392,15 @@ class MiVeCCConfig:
              f"v_max_mps * dt_s = {step_m:g} m per step must be below 2 * vehicle_length_m = "
              f"{2 * self.vehicle_length_m:g} m (else a vehicle can pass another within one step "
              f"unseen by the collision check): lower dt_s or v_max_mps, got dt_s={self.dt_s}")
+        need(abs(self.entry_accel_mps2) <= self.a_max_mps2, "entry_accel_mps2",
+             f"must be in [{-self.a_max_mps2}, {self.a_max_mps2}] (a_max_mps2), "
+             f"got {self.entry_accel_mps2}")
+        need(self.section_after_m < self.segment_length_m, "section_after_m",
+             f"must be in [0, {self.segment_length_m}) (segment_length_m), "
+             f"got {self.section_after_m}")
+        need(self.section_control_end_m <= self.section_after_m, "section_control_end_m",
+             f"must be in [0, {self.section_after_m}] (section_after_m), "
+             f"got {self.section_control_end_m}")
 
     # ------------------------------------------------------------------------------------
     @property
@@ -342,6 +430,22 @@ def _plain_scalar(value: Any) -> Any:
     if isinstance(value, np.generic) or (isinstance(value, np.ndarray) and value.ndim == 0):
         return value.item()
     return value
+
+
+_dataclass_init = MiVeCCConfig.__init__
+
+
+def _init_with_preset(self: MiVeCCConfig, *args: Any, **kwargs: Any) -> None:
+    """The dataclass ``__init__``, with the ``model`` preset under the explicit keywords."""
+    model = kwargs.get("model", "paper")
+    if model in MODEL_PRESETS and not args:
+        kwargs = {**MODEL_PRESETS[model], **kwargs}
+    _dataclass_init(self, *args, **kwargs)
+
+
+_init_with_preset.__doc__ = _dataclass_init.__doc__
+_init_with_preset.__signature__ = inspect.signature(_dataclass_init)  # type: ignore[attr-defined]
+MiVeCCConfig.__init__ = _init_with_preset  # type: ignore[method-assign]
 
 
 def _check_field(f: dataclasses.Field, value: Any) -> None:
@@ -379,6 +483,10 @@ def from_overrides(base: MiVeCCConfig | None = None, **overrides: Any) -> MiVeCC
                 "give only one"
             )
     fixed: dict[str, Any] = {}
+    model = overrides.get("model")
+    if isinstance(model, str) and model in MODEL_PRESETS:
+        # Precedence: the base config < the new model's preset < the other explicit overrides.
+        fixed.update(MODEL_PRESETS[model])
     for key, value in overrides.items():
         value = _plain_scalar(value)
         name = ALIASES.get(key, key)

@@ -28,7 +28,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.sim import checks, controllers, end_node, signals, step_kernels
+from mivecc_env.sim import (
+    checks,
+    controllers,
+    edge_selection,
+    end_node,
+    sections,
+    signals,
+    step_kernels,
+)
 from mivecc_env.sim.arrivals import ArrivalProcess
 from mivecc_env.sim.near_miss import NearMissStats
 from mivecc_env.sim.network import GridNetwork
@@ -106,7 +114,9 @@ class Simulator:
     # state
     def reset(self, seed: int | Sequence[int] | None = None) -> None:
         """Empty network, fresh arrival streams, time 0."""
-        self.arrivals.reset(self._seed_sequences(seed))
+        seeds = self._seed_sequences(seed)
+        self.arrivals.reset(seeds)
+        self.selection_rngs = edge_selection.make_generators(seeds)  # edge_selection="random"
         shape = (self.batch_size, self._initial_capacity)
         self.active = np.zeros(shape, dtype=bool)
         self.lane = np.zeros(shape, dtype=np.int64)
@@ -238,31 +248,56 @@ class Simulator:
 
     def _compute_safety(self, view: VirtualLaneView) -> VehicleSafety:
         c = self.config
-        fast = step_kernels.safety_inputs(
-            self.v.ravel(), self.a.ravel(), view.vehicle, view.point_vehicle, view.front_point,
-            view.back_point, view.d_front, view.d_back, c.sv_acc_source == "ego",
+        d_front, d_back = view.d_front, view.d_back
+        neighbours = None
+        if c.section_virtual_lanes:  # released code: section-limited virtual lanes
+            neighbours = sections.section_neighbours(
+                self.network, c, view, self.active, self.lane, self.s
+            )
+            d_front, d_back = neighbours[2], neighbours[3]
+        fast = None
+        if neighbours is None and c.ttc_closing_offset_mps == 0.0:
+            fast = step_kernels.safety_inputs(
+                self.v.ravel(), self.a.ravel(), view.vehicle, view.point_vehicle,
+                view.front_point, view.back_point, view.d_front, view.d_back,
+                c.sv_acc_source == "ego",
+            )
+        d_nearest, ttc, acc = (
+            fast if fast is not None else self._safety_inputs_reference(view, neighbours)
         )
-        d_nearest, ttc, acc = fast if fast is not None else self._safety_inputs_reference(view)
-        sv = safety_value(d_nearest, ttc, view.d_front, acc, c)
-        return VehicleSafety(sv=sv, d_front=view.d_front, d_back=view.d_back, ttc=ttc)
+        sv = safety_value(d_nearest, ttc, d_front, acc, c)
+        return VehicleSafety(sv=sv, d_front=d_front, d_back=d_back, ttc=ttc)
 
     def _safety_inputs_reference(
-        self, view: VirtualLaneView
+        self, view: VirtualLaneView,
+        neighbours: tuple[IntArray, IntArray, FloatArray, FloatArray] | None = None,
     ) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """(nearest distance [m], time to collision [s], SV_acc acceleration [m/s^2])."""
+        """(nearest distance [m], time to collision [s], SV_acc acceleration [m/s^2]).
+
+        ``neighbours``: (front, back, d_front, d_back) in view order to use instead of the
+        view's own (the released code's section-limited virtual lanes).
+        """
+        c = self.config
         v = self.v.ravel()[view.vehicle]
         a = self.a.ravel()[view.vehicle]
-        pv = view.point_vehicle
-        has_f, has_b = view.front_point >= 0, view.back_point >= 0
-        fi = pv[np.maximum(view.front_point, 0)]
-        bi = pv[np.maximum(view.back_point, 0)]
+        if neighbours is None:
+            pv = view.point_vehicle
+            d_front, d_back = view.d_front, view.d_back
+            has_f, has_b = view.front_point >= 0, view.back_point >= 0
+            fi = pv[np.maximum(view.front_point, 0)]
+            bi = pv[np.maximum(view.back_point, 0)]
+        else:
+            front, back, d_front, d_back = neighbours
+            has_f, has_b = front >= 0, back >= 0
+            fi, bi = np.maximum(front, 0), np.maximum(back, 0)
         v_front = np.where(has_f, v[fi], 0.0)
         v_back = np.where(has_b, v[bi], 0.0)
-        ahead = view.d_front <= view.d_back
-        d_nearest = np.minimum(view.d_front, view.d_back)
-        closing = np.where(ahead, v - v_front, v_back - v)
+        ahead = d_front <= d_back
+        d_nearest = np.minimum(d_front, d_back)
+        off = c.ttc_closing_offset_mps  # released code: 0.1 (subtracted when behind)
+        closing = np.where(ahead, v - v_front + off, v_back - v - off)
         ttc = np.where(np.isfinite(d_nearest), time_to_collision(d_nearest, closing), np.inf)
-        acc = a if self.config.sv_acc_source == "ego" else np.where(has_f, a[fi], 0.0)
+        acc = a if c.sv_acc_source == "ego" else np.where(has_f, a[fi], 0.0)
         return d_nearest, ttc, acc
 
     # ------------------------------------------------------------------------------------
@@ -308,6 +343,8 @@ class Simulator:
         s_new, v_new, a_applied = end_node.bounded_motion(
             s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
         )
+        if c.speed_reset and c.control != "signalized":
+            v_new = sections.apply_speed_reset(self.network, c, lane, s_new, v_new)
         t0 = self.env_time_s  # (B,) each environment's own clock
         t1 = t0 + c.dt_s
         self.s.ravel()[flat] = s_new
@@ -340,15 +377,22 @@ class Simulator:
         if c.same_lane_rule:
             leader_gap = np.where(view.leader >= 0, s[view.leader] - s, np.inf)
             follower_gap = np.where(view.follower >= 0, s - s[view.follower], np.inf)
-            cps = self.network.lane_cp_s[view.lane]
-            to_cp = np.where(cps >= s[:, None], cps - s[:, None], np.inf).min(axis=1)
+            if c.same_lane_rule_reference == "centre":
+                to_cp = sections.distance_to_section_centre(self.network, c, view.lane, s)
+            else:
+                cps = self.network.lane_cp_s[view.lane]
+                to_cp = np.where(cps >= s[:, None], cps - s[:, None], np.inf).min(axis=1)
             a_end = end_node.apply_same_lane_rule(
-                a_end, leader_gap, follower_gap, to_cp, view.d_front, c
+                a_end, leader_gap, follower_gap, to_cp, safety.d_front, c
             )
         edge = None if edge_accel is None or c.scheme == "E" else edge_accel.ravel()[view.vehicle]
         cloud = (None if cloud_accel is None or c.scheme != "EEC"
                  else cloud_accel.ravel()[view.vehicle])
-        return end_node.fuse(a_end, safety.sv, edge, cloud, c)
+        accel = end_node.fuse(a_end, safety.sv, edge, cloud, c)
+        if c.header_rule or c.sections or c.speed_reset:
+            ctrl = sections.controlled(self.network, c, view.lane, s)
+            accel = sections.control_overrides(accel, ctrl, safety.d_front, c)
+        return accel
 
     def _record_exits(
         self, view: VirtualLaneView, out: NDArray[np.bool_], s_old: FloatArray,
@@ -391,7 +435,9 @@ class Simulator:
         events.collided_vehicles = np.bincount(env, minlength=b)
         self.collided += events.collided_vehicles
         events.collided_env = env
-        events.collided_area = self.network.control_area(view.lane[hit], s_new[hit])
+        events.collided_area = sections.control_area(
+            self.network, self.config, view.lane[hit], s_new[hit]
+        )
         self.active.ravel()[view.vehicle[hit]] = False
 
     def _enter_vehicles(self, now_s: FloatArray, events: StepEvents) -> None:
@@ -429,7 +475,7 @@ class Simulator:
         self.lane[env, slot] = lane
         self.s[env, slot] = 0.0
         self.v[env, slot] = c.v_init_mps
-        self.a[env, slot] = 0.0
+        self.a[env, slot] = c.entry_accel_mps2
         self.t_arrive[env, slot] = t_arr
         self.t_enter[env, slot] = now_s[env]
         self.vid[env, slot] = self.next_vid[env] + ordinal

@@ -57,7 +57,11 @@ def safety_value(
     """
     c = config
     d = np.maximum(np.asarray(d_nearest_m, dtype=np.float64), MIN_DISTANCE_M)
-    sv_d = c.sv_beta_d * np.log(d / c.sv_alpha_d)
+    if c.sv_d_epsilon > 0.0:  # released code: ln((d / alpha)^beta + eps), floored
+        with np.errstate(over="ignore"):
+            sv_d = np.log((d / c.sv_alpha_d) ** c.sv_beta_d + c.sv_d_epsilon)
+    else:
+        sv_d = c.sv_beta_d * np.log(d / c.sv_alpha_d)
 
     ttc = np.asarray(ttc_s, dtype=np.float64)
     sensitive = (ttc > 0.0) & (ttc < 1.0)
@@ -67,9 +71,13 @@ def safety_value(
         sv_t[sensitive] = -((c.sv_alpha_t / np.tanh(t)) ** c.sv_beta_t)
 
     d_front = np.maximum(np.asarray(d_front_m, dtype=np.float64), MIN_DISTANCE_M)
+    if c.sv_no_front_distance_m is not None:  # released code: nothing ahead counts as 100 m
+        d_front = np.where(np.isfinite(d_front), d_front, c.sv_no_front_distance_m)
     has_front = np.isfinite(d_front)
     ratio = np.minimum(d_front / c.sv_d_threshold_m, c.sv_alpha_acc)
-    sv_acc = np.where(
-        has_front, c.sv_lambda_acc * acc_mps2 * c.sv_beta_acc * np.log(ratio), 0.0
-    )
+    if c.sv_acc_epsilon > 0.0:  # released code: ln(ratio^beta + eps)
+        log_term = np.log(ratio**c.sv_beta_acc + c.sv_acc_epsilon)
+    else:
+        log_term = c.sv_beta_acc * np.log(ratio)
+    sv_acc = np.where(has_front, c.sv_lambda_acc * acc_mps2 * log_term, 0.0)
     return np.clip(sv_d + sv_t + sv_acc, c.sv_min, c.sv_max)

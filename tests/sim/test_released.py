@@ -1,0 +1,239 @@
+"""The released code's behaviours (``model="released"``), each on a hand-computed case."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
+from mivecc_env.model_presets import PAPER, RELEASED
+from mivecc_env.sim import edge_selection, sections
+from mivecc_env.sim.core import Simulator
+from mivecc_env.sim.end_node import same_lane_threshold_m
+from mivecc_env.sim.safety import safety_value
+from tests.sim._scenario import EAST, NORTH, WEST, place
+
+# 1x1 grid: lanes are 300 m long, the centre is at s = 150, conflict points at 145 and 155.
+REL_1X1 = MiVeCCConfig(rows=1, cols=1, density_vplh=1.0, model="released", scheme="E")
+
+
+def released_sim(**overrides: object) -> Simulator:
+    return Simulator(REL_1X1.replace(**overrides), seed=0)
+
+
+# --- the preset -----------------------------------------------------------------------------
+def test_preset_sets_every_named_field() -> None:
+    cfg = MiVeCCConfig(model="released")
+    for name, value in RELEASED.items():
+        assert getattr(cfg, name) == value, name
+    assert cfg.v_min_mps == 5.0 and cfg.speed_reset and cfg.header_rule
+    paper = MiVeCCConfig()
+    for name, value in PAPER.items():
+        assert getattr(paper, name) == value, name
+
+
+def test_explicit_fields_win_over_the_preset() -> None:
+    cfg = MiVeCCConfig(model="released", v_min_mps=6.0, speed_reset=False)
+    assert cfg.v_min_mps == 6.0 and not cfg.speed_reset and cfg.header_rule
+    base = MiVeCCConfig(omega=0.3, v_min_mps=6.5)
+    cfg = from_overrides(base, model="released", edge_sv_gate=-1.0)
+    # base < preset < explicit overrides
+    assert cfg.omega == 0.3 and cfg.v_min_mps == 5.0 and cfg.edge_sv_gate == -1.0
+    # a replace without ``model`` keeps every field, a switch back restores the paper's
+    assert cfg.replace(omega=0.1).v_min_mps == 5.0
+    back = cfg.replace(model="paper")
+    assert back.v_min_mps == 6.0 and not back.sections and back.omega == 0.3
+
+
+def test_parallel_env_accepts_model() -> None:
+    from mivecc_env.mivecc_v0 import parallel_env
+
+    env = parallel_env(rows=1, cols=1, model="released", max_steps=5)
+    assert env.config.section_virtual_lanes and env.config.entry_clearance_m == 0.0
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step({})
+    with pytest.raises(ConfigError, match="model"):
+        parallel_env(model="authors")
+
+
+# --- 2: sections ----------------------------------------------------------------------------
+def test_section_boundaries_on_3x3() -> None:
+    cfg = MiVeCCConfig(model="released")  # lanes 600 m, centres at 150, 300, 450
+    sim = Simulator(cfg.replace(density_vplh=1.0), seed=0)
+    s = np.array([0.0, 154.99, 155.0, 159.99, 160.0, 304.99, 305.0, 454.99, 455.0, 599.0])
+    lane = np.zeros(s.size, dtype=np.int64)
+    k, offset = sections.section_of(sim.network, cfg, lane, s)
+    assert k.tolist() == [0, 0, 0, 0, 1, 1, 1, 2, 2, 2]
+    np.testing.assert_allclose(offset[[0, 4, 6]], [-150.0, -140.0, 5.0])
+    ctrl = sections.controlled(sim.network, cfg, lane, s)
+    assert ctrl.tolist() == [True, True, False, False, True, True, False, True, False, False]
+    area = sections.control_area(sim.network, cfg, lane, s)
+    ids = sim.network.lane_intersections[0]
+    assert area.tolist() == [ids[0], ids[0], -1, -1, ids[1], ids[1], -1, ids[2], -1, -1]
+
+
+# --- 1: speed reset -------------------------------------------------------------------------
+def test_speed_reset_jumps_to_v_max_past_the_controlled_part() -> None:
+    sim = released_sim()
+    # 0: lone, ends the step at 155.55 (past centre + 5): reset to 13 m/s.
+    # 1 (other lane): ends at 154.2, still controlled: bounded by a_max (header: +3).
+    place(sim, [(EAST, 154.5, 10.0), (WEST, 153.2, 10.0)])
+    sim.step()
+    assert sim.s[0, 0] == pytest.approx(154.5 + 1.0 + 0.5 * 3.0 * 0.01)
+    assert sim.v[0, 0] == 13.0
+    assert sim.v[0, 1] == pytest.approx(10.3)
+    sim.step()  # uncontrolled: drives on at 13 m/s, no rule acts
+    assert sim.v[0, 0] == 13.0 and sim.a[0, 0] == 0.0
+
+
+def test_without_speed_reset_uncontrolled_vehicles_accelerate_within_bounds() -> None:
+    sim = released_sim(speed_reset=False)
+    place(sim, [(EAST, 156.0, 10.0)])
+    sim.step()
+    assert sim.v[0, 0] == pytest.approx(10.3) and sim.a[0, 0] == pytest.approx(3.0)
+
+
+# --- 3: section-limited virtual lanes -------------------------------------------------------
+def test_section_virtual_lane_sees_crossing_but_not_opposite_or_uncontrolled() -> None:
+    # ego east at 100; a northbound vehicle at 100 conflicts at (east 155, north 145), so it is
+    # projected at 155 + (100 - 145) = 110 on the ego's lane; a westbound (opposite) vehicle is
+    # never projected; a northbound vehicle past its controlled part (156 > 155) is not seen.
+    sim = released_sim()
+    place(sim, [(EAST, 100.0, 10.0), (NORTH, 100.0, 10.0), (WEST, 140.0, 10.0)])
+    assert sim.safety.d_front[0] == pytest.approx(10.0)
+    place(sim, [(EAST, 100.0, 10.0), (NORTH, 156.0, 10.0), (WEST, 140.0, 10.0)])
+    assert math.isinf(sim.safety.d_front[0]) and math.isinf(sim.safety.d_back[0])
+    # the paper's view projects the first northbound vehicle too (window 75 m)
+    paper = released_sim(section_virtual_lanes=False)
+    place(paper, [(EAST, 100.0, 10.0), (NORTH, 100.0, 10.0)])
+    assert paper.safety.d_front[0] == pytest.approx(10.0)
+
+
+def test_section_virtual_lane_hides_the_leader_in_the_next_section() -> None:
+    cfg = MiVeCCConfig(model="released", density_vplh=1.0)
+    sim = Simulator(cfg, seed=0)
+    place(sim, [(0, 150.0, 10.0), (0, 165.0, 10.0)])  # 165 is in section 1 (starts at 160)
+    assert math.isinf(sim.safety.d_front[0])
+    full = Simulator(cfg.replace(section_virtual_lanes=False), seed=0)
+    place(full, [(0, 150.0, 10.0), (0, 165.0, 10.0)])
+    assert full.safety.d_front[0] == pytest.approx(15.0)
+
+
+# --- 4: header rule -------------------------------------------------------------------------
+def test_header_rule_overrides_rule_and_edge() -> None:
+    cfg = REL_1X1
+    a = sections.control_overrides(
+        np.array([-3.0, -3.0, -3.0]), np.array([True, True, False]),
+        np.array([np.inf, 5.0, np.inf]), cfg,
+    )
+    assert a.tolist() == [3.0, -3.0, 0.0]
+    # in the simulator, an edge command of -3 for the lone first vehicle is overridden
+    sim = released_sim(scheme="EE", edge_sv_gate=None)
+    place(sim, [(EAST, 50.0, 10.0)])
+    edge = np.full(sim.active.shape, np.nan)
+    edge[0, 0] = -3.0
+    sim.step(edge_accel=edge)
+    assert sim.a[0, 0] == pytest.approx(3.0)
+    off = released_sim(scheme="EE", edge_sv_gate=None, header_rule=False)
+    place(off, [(EAST, 50.0, 10.0), (EAST, 40.0, 10.0)])  # safe follower far behind
+    edge = np.full(off.active.shape, np.nan)
+    edge[0, 0] = 3.0
+    off.step(edge_accel=edge)
+    assert off.a[0, 0] == pytest.approx(3.0)
+
+
+# --- 5: SV floor ----------------------------------------------------------------------------
+def test_sv_floor_at_two_metres() -> None:
+    cfg = REL_1X1
+    # ln((2/10)^10 + 1e-4) = ln(1.024e-7 + 1e-4) = -9.209316; SV_t = 2; SV_acc = 0 (a = 0)
+    sv = safety_value(np.array([2.0]), np.array([np.inf]), np.array([2.0]), np.array([0.0]), cfg)
+    assert sv[0] == pytest.approx(math.log(0.2**10 + 1e-4) + 2.0)
+    assert sv[0] == pytest.approx(-7.209316, abs=1e-6)
+    paper = MiVeCCConfig()
+    sv_p = safety_value(np.array([2.0]), np.array([np.inf]), np.array([2.0]), np.array([0.0]),
+                        paper)
+    assert sv_p[0] == pytest.approx(10 * math.log(0.2) + 2.0)  # -14.09: no floor
+    # nothing ahead counts as 100 m: SV_acc = 0.2 * 3 * ln(1.5^12 + 1e-7) = 2.9194
+    sv_a = safety_value(np.array([50.0]), np.array([np.inf]), np.array([np.inf]),
+                        np.array([3.0]), cfg.replace(sv_max=100.0))
+    expected = math.log(5.0**10 + 1e-4) + 2.0 + 0.2 * 3.0 * math.log(1.5**12 + 1e-7)
+    assert sv_a[0] == pytest.approx(expected)
+
+
+def test_ttc_closing_offset() -> None:
+    # leader 5 m ahead, same speed: closing 0 + 0.1 -> TTC 50 s (not sensitive, SV_t = 2)
+    sim = released_sim()
+    place(sim, [(EAST, 100.0, 10.0), (EAST, 105.0, 10.0)])
+    assert sim.safety.ttc[0] == pytest.approx(50.0)
+    paper = Simulator(MiVeCCConfig(rows=1, cols=1, density_vplh=1.0), seed=0)
+    place(paper, [(EAST, 100.0, 10.0), (EAST, 105.0, 10.0)])
+    assert math.isinf(paper.safety.ttc[0])
+
+
+# --- 6: same-lane rule ----------------------------------------------------------------------
+def test_same_lane_threshold_is_7_53_m_with_v_min_5() -> None:
+    assert same_lane_threshold_m(REL_1X1) == pytest.approx(64.0 / 12.0 + 2.2)
+    assert same_lane_threshold_m(REL_1X1) == pytest.approx(7.5333, abs=1e-4)
+
+
+def test_same_lane_rule_uses_the_centre() -> None:
+    # follower 7 m behind its leader (< 7.53 m) brakes at -3 only more than 50 m before the
+    # reference: s = 97 is 53 m before the centre (150) but 48 m before the first conflict point
+    # (145); s = 102 is within 50 m of both.
+    def accel(s_f: float, reference: str) -> float:
+        sim = released_sim(header_rule=False, same_lane_rule_reference=reference)
+        place(sim, [(EAST, s_f, 10.0), (EAST, s_f + 7.0, 10.0)])
+        sim.step()
+        return float(sim.a[0, 0])
+
+    assert accel(97.0, "centre") == pytest.approx(-3.0)
+    assert accel(97.0, "conflict_point") != pytest.approx(-3.0)
+    assert accel(102.0, "centre") != pytest.approx(-3.0)
+    assert accel(90.0, "conflict_point") == pytest.approx(-3.0)
+
+
+# --- 7: entry -------------------------------------------------------------------------------
+def test_entry_without_clearance_and_with_a_max() -> None:
+    cfg = MiVeCCConfig(rows=1, cols=1, density_vplh=3600.0, min_headway_s=1.0,
+                       model="released")
+    sim = Simulator(cfg, seed=0)
+    entered_a = []
+    for _ in range(300):
+        sim.step()
+        new = sim.active[0] & (sim.s[0] == 0.0)
+        entered_a += sim.a[0, new].tolist()
+        arrived, queued = sim.arrived[0], sim.queued[0]
+        assert arrived == queued + sim.in_network[0] + sim.exited[0] + sim.collided[0]
+    assert entered_a and all(a == 3.0 for a in entered_a)
+    assert sim.queued[0] == 0  # never held back: no clearance check
+    with pytest.raises(ConfigError, match="entry_accel_mps2"):
+        MiVeCCConfig(entry_accel_mps2=4.0)
+
+
+# --- 8: edge selection ----------------------------------------------------------------------
+def test_random_edge_selection_is_seeded_and_batch_independent() -> None:
+    seeds = [np.random.SeedSequence(5).spawn(1)[0], np.random.SeedSequence(6).spawn(1)[0]]
+    cfg = REL_1X1
+    env = np.array([0, 0, 0, 1, 1])
+    k1 = edge_selection.edge_priority(np.zeros(5), env, edge_selection.make_generators(seeds), cfg)
+    k2 = edge_selection.edge_priority(np.zeros(3), env[:3],
+                                      edge_selection.make_generators(seeds[:1]), cfg)
+    np.testing.assert_array_equal(k1[:3], k2)
+    assert ((k1 >= cfg.sv_min) & (k1 < cfg.sv_max)).all() and np.unique(k1).size == 5
+    low = cfg.replace(edge_selection="lowest_sv")
+    sv = np.arange(5.0)
+    assert edge_selection.edge_priority(sv, env, [], low) is sv
+
+
+def test_released_run_keeps_the_accounting() -> None:
+    cfg = MiVeCCConfig(rows=2, cols=2, density_vplh=2100.0, model="released")
+    sim = Simulator(cfg, batch_size=2, seed=[0, 1])
+    for _ in range(400):
+        sim.step()
+        np.testing.assert_array_equal(
+            sim.arrived, sim.queued + sim.in_network + sim.exited + sim.collided
+        )
+    assert (sim.exited > 0).all()
