@@ -31,7 +31,8 @@ EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
 CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
 Model = Literal["paper", "released"]
-SameLaneReference = Literal["conflict_point", "centre"]
+AccelRecord = Literal["applied", "commanded"]
+SameLaneForm = Literal["project", "released"]
 EdgeSelection = Literal["lowest_sv", "random"]
 
 
@@ -219,6 +220,11 @@ class MiVeCCConfig:
         "vehicles of that part only, crossing vehicles while in the controlled part of the same "
         "section (released code)"
     )
+    section_entry_lag: bool = _choice(
+        False, (False, True), "with section_virtual_lanes: a vehicle is left out of the virtual "
+        "lanes on the step it enters the network or a new section (released code: it files a "
+        "vehicle under its section one step late and adds new vehicles after the SV pass)"
+    )
     speed_reset: bool = _choice(
         False, (False, True), "every vehicle past a section's controlled part (until the next "
         "section) and on exit links drives at v_max, set instantly, no rule acting (released "
@@ -245,15 +251,23 @@ class MiVeCCConfig:
             "(released code: 100); None: SV_acc is 0 then",
         },
     )
+    accel_record: AccelRecord = _choice(
+        "applied", ("applied", "commanded"),
+        "the acceleration a vehicle records (SV_acc, state graphs): the one applied within the "
+        "velocity bounds, or the commanded one when a bound cut the step, 0 when the velocity "
+        "did not change (released code)",
+    )
     ttc_closing_offset_mps: float = _num(
         0.0, 0.0, 10.0, "TTC = gap / (closing speed + this) [m/s] (released code: 0.1; "
         "subtracted when the nearest vehicle is behind, as there)"
     )
-    same_lane_rule_reference: SameLaneReference = _choice(
-        "conflict_point", ("conflict_point", "centre"),
-        "the same-lane rule acts more than same_lane_rule_horizon_m before the next conflict "
-        "point, or before the centre of the vehicle's section (released code; no rule on exit "
-        "links)",
+    same_lane_rule_form: SameLaneForm = _choice(
+        "project", ("project", "released"),
+        "project: the same-lane rule acts more than same_lane_rule_horizon_m before the next "
+        "conflict point, on a_end before the fusion, with positions at the step start; released "
+        "(released code): more than that before its section's centre (never on exit links), "
+        "after the edge fusion (an edge action cannot soften it), with the leader's position "
+        "after the leader's own move (the released code moves vehicles one by one)",
     )
     edge_selection: EdgeSelection = _choice(
         "lowest_sv", ("lowest_sv", "random"),

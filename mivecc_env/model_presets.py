@@ -30,13 +30,15 @@ RELEASED: dict[str, Any] = {
     "speed_reset": True,  # 1
     "sections": True,  # 2
     "section_virtual_lanes": True,  # 3
+    "section_entry_lag": True,  # 3: one step unseen after entering the network or a section
     "header_rule": True,  # 4
     "sv_d_epsilon": 1e-4,  # 5
     "sv_acc_epsilon": 1e-7,  # 5
     "sv_no_front_distance_m": 100.0,  # 5
     "ttc_closing_offset_mps": 0.1,  # 5
+    "accel_record": "commanded",  # 5: SV_acc sees the commanded a when a bound cut the step
     "same_lane_rule": True,  # 6
-    "same_lane_rule_reference": "centre",  # 6
+    "same_lane_rule_form": "released",  # 6
     "edge_sv_gate": -2.0,  # 8
     "edge_selection": "random",  # 8 (test time; the released training picks the lowest SV)
     "reward_sv_weight": 1.0,  # edge reward: mean SV with weight 1
@@ -50,13 +52,15 @@ PAPER: dict[str, Any] = {
     "speed_reset": False,
     "sections": False,
     "section_virtual_lanes": False,
+    "section_entry_lag": False,
     "header_rule": False,
     "sv_d_epsilon": 0.0,
     "sv_acc_epsilon": 0.0,
     "sv_no_front_distance_m": None,
     "ttc_closing_offset_mps": 0.0,
+    "accel_record": "applied",
     "same_lane_rule": False,
-    "same_lane_rule_reference": "conflict_point",
+    "same_lane_rule_form": "project",
     "edge_sv_gate": None,
     "edge_selection": "lowest_sv",
     "reward_sv_weight": 0.05,

@@ -20,6 +20,7 @@ Accounting invariant, per environment, after every step:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -147,6 +148,7 @@ class Simulator:
         self.controller = controllers.make_controller(self.config, self.network, self.batch_size)
         self.signal_phases = (SignalPhases(self.config, self.network, self.batch_size)
                               if self.config.control == "signalized" else None)
+        self._prev_s: tuple[IntArray, FloatArray] | None = None  # (slots, s) before the move
         self._refresh_view()
 
     def reset_at(self, env_index: Sequence[int] | np.ndarray, seeds: Sequence[int]) -> None:
@@ -252,7 +254,7 @@ class Simulator:
         neighbours = None
         if c.section_virtual_lanes:  # released code: section-limited virtual lanes
             neighbours = sections.section_neighbours(
-                self.network, c, view, self.active, self.lane, self.s
+                self.network, c, view, self.active, self.lane, self.s, self._prev_s
             )
             d_front, d_back = neighbours[2], neighbours[3]
         fast = None
@@ -343,10 +345,13 @@ class Simulator:
         s_new, v_new, a_applied = end_node.bounded_motion(
             s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
         )
+        if c.accel_record == "commanded":  # released code
+            a_applied = np.where(v_new == v, 0.0, accel)
         if c.speed_reset and c.control != "signalized":
             v_new = sections.apply_speed_reset(self.network, c, lane, s_new, v_new)
         t0 = self.env_time_s  # (B,) each environment's own clock
         t1 = t0 + c.dt_s
+        self._prev_s = (flat, s)
         self.s.ravel()[flat] = s_new
         self.v.ravel()[flat] = v_new
         self.a.ravel()[flat] = a_applied
@@ -374,24 +379,45 @@ class Simulator:
     ) -> FloatArray:
         c, safety = self.config, self._safety
         a_end = end_node.end_accel(safety.sv, safety.d_front, safety.d_back, c)
-        if c.same_lane_rule:
-            leader_gap = np.where(view.leader >= 0, s[view.leader] - s, np.inf)
-            follower_gap = np.where(view.follower >= 0, s - s[view.follower], np.inf)
-            if c.same_lane_rule_reference == "centre":
-                to_cp = sections.distance_to_section_centre(self.network, c, view.lane, s)
-            else:
-                cps = self.network.lane_cp_s[view.lane]
-                to_cp = np.where(cps >= s[:, None], cps - s[:, None], np.inf).min(axis=1)
-            a_end = end_node.apply_same_lane_rule(
-                a_end, leader_gap, follower_gap, to_cp, safety.d_front, c
-            )
+        a_end = end_node.entry_action(a_end, s, c)
         edge = None if edge_accel is None or c.scheme == "E" else edge_accel.ravel()[view.vehicle]
         cloud = (None if cloud_accel is None or c.scheme != "EEC"
                  else cloud_accel.ravel()[view.vehicle])
-        accel = end_node.fuse(a_end, safety.sv, edge, cloud, c)
-        if c.header_rule or c.sections or c.speed_reset:
-            ctrl = sections.controlled(self.network, c, view.lane, s)
-            accel = sections.control_overrides(accel, ctrl, safety.d_front, c)
+        overrides = c.header_rule or c.sections or c.speed_reset
+        ctrl = sections.controlled(self.network, c, view.lane, s) if overrides else None
+        rule = None
+        if c.same_lane_rule:
+            has_lead = view.leader >= 0
+            follower_gap = np.where(view.follower >= 0, s - s[view.follower], np.inf)
+            if c.same_lane_rule_form == "released":
+                to_ref = sections.distance_to_section_centre(self.network, c, view.lane, s)
+            else:
+                cps = self.network.lane_cp_s[view.lane]
+                to_ref = np.where(cps >= s[:, None], cps - s[:, None], np.inf).min(axis=1)
+
+            def rule(a: FloatArray, lead_s: FloatArray) -> FloatArray:
+                gap = np.where(has_lead, lead_s[view.leader] - s, np.inf)
+                return end_node.apply_same_lane_rule(
+                    a, gap, follower_gap, to_ref, safety.d_front, c
+                )
+
+        lead_s = s
+        # The released code moves vehicles one by one in lane order, so its same-lane rule sees
+        # the leader's position after the leader's own move: a few passes settle it.
+        passes = 3 if c.same_lane_rule and c.same_lane_rule_form == "released" else 1
+        for k in range(passes):
+            if rule is not None and c.same_lane_rule_form == "released":
+                after = functools.partial(rule, lead_s=lead_s)
+                accel = end_node.fuse(a_end, safety.sv, edge, cloud, c, after_edge=after)
+            else:
+                a_rule = a_end if rule is None else rule(a_end, s)
+                accel = end_node.fuse(a_rule, safety.sv, edge, cloud, c)
+            if overrides:
+                accel = sections.control_overrides(accel, ctrl, safety.d_front, c)
+            if k + 1 < passes:
+                lead_s = end_node.bounded_motion(
+                    s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
+                )[0]
         return accel
 
     def _record_exits(

@@ -5,6 +5,8 @@ All functions are vectorised over vehicles. A missing coordinator action is ``Na
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -38,6 +40,16 @@ def end_accel(
     return np.where(nearest_ahead, np.abs(ratio), ratio)
 
 
+def entry_action(a_end: FloatArray, s_m: FloatArray, config: MiVeCCConfig) -> FloatArray:
+    """The released code's first step: a vehicle still at the lane entry (``s = 0``: it entered
+    at the end of the last step) acts on ``entry_accel_mps2`` instead of its SV (the released
+    code starts every vehicle with SV 10, whose ``SV / eta`` is clipped to ``+a_max``).
+    A no-op when ``entry_accel_mps2 = 0`` (default)."""
+    if config.entry_accel_mps2 == 0.0:
+        return a_end
+    return np.where(s_m == 0.0, config.entry_accel_mps2, a_end)
+
+
 def apply_same_lane_rule(
     a_end: FloatArray,
     leader_gap_m: FloatArray,
@@ -68,11 +80,13 @@ def fuse(
     a_edge: FloatArray | None,
     a_cloud: FloatArray | None,
     config: MiVeCCConfig,
+    after_edge: Callable[[FloatArray], FloatArray] | None = None,
 ) -> FloatArray:
     """Executed acceleration [m/s^2] from end, edge and cloud actions (Algorithm 3).
 
     * Edge (where given and, if ``edge_sv_gate`` is set, where ``SV > edge_sv_gate``):
       ``max(a_edge, a_end)`` when ``a_edge * a_end > 0``, else ``a_end`` (the rule vetoes).
+    * ``after_edge`` (the released code's same-lane rule) then rewrites the result.
     * Cloud (where given): ``(1 - omega) a + omega a_cloud``.
     * Finally clipped to ``[-a_max, a_max]`` (documented; the velocity bounds are applied by the
       motion model).
@@ -85,6 +99,8 @@ def fuse(
         edge = np.where(use, a_edge, 0.0)
         agree = use & (edge * a > 0)
         a = np.where(agree, np.maximum(edge, a), a)
+    if after_edge is not None:
+        a = after_edge(a)
     if a_cloud is not None:
         use = ~np.isnan(a_cloud)
         a = np.where(use, (1.0 - config.omega) * a + config.omega * np.where(use, a_cloud, 0.0), a)

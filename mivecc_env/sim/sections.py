@@ -172,11 +172,14 @@ def _section_network(
 
 
 def section_view(
-    network: GridNetwork, config: MiVeCCConfig, active: BoolArray, lane: IntArray, s: FloatArray
+    network: GridNetwork, config: MiVeCCConfig, active: BoolArray, lane: IntArray, s: FloatArray,
+    prev_s: tuple[IntArray, FloatArray] | None = None,
 ) -> VirtualLaneView:
     """The section-limited virtual-lane view of the controlled vehicles (see the module doc).
 
-    Lanes of the returned view are derived lanes ``lane * n_on_max + section``.
+    Lanes of the returned view are derived lanes ``lane * n_on_max + section``. With
+    ``section_entry_lag``, ``prev_s`` = (flat slots, positions before the last move) leaves out
+    the vehicles whose section changed in that move and those that just entered (``s = 0``).
     """
     net = _section_network(
         network.rows, network.cols, network.segment_length_m, network.lane_offset_m,
@@ -187,6 +190,14 @@ def section_view(
     lane_f, s_f = lane.ravel()[flat], s.ravel()[flat]
     k, offset = section_of(network, config, lane_f, s_f)
     keep = offset < config.section_control_end_m
+    if config.section_entry_lag:
+        keep &= s_f > 0.0  # entered at the end of the last step: not seen yet
+        if prev_s is not None and prev_s[0].size:
+            before = np.full(active.size, -1, dtype=np.int64)
+            slots, s_old = prev_s
+            before[slots] = section_of(network, config, lane.ravel()[slots], s_old)[0]
+            k_old = before[flat]
+            keep &= (k_old < 0) | (k_old == k)  # -1: no record (a slot filled this step)
     sec_active = np.zeros(active.size, dtype=bool)
     sec_active[flat[keep]] = True
     sec_lane = np.zeros(active.size, dtype=np.int64)
@@ -203,7 +214,7 @@ def section_view(
 
 def section_neighbours(
     network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView, active: BoolArray,
-    lane: IntArray, s: FloatArray,
+    lane: IntArray, s: FloatArray, prev_s: tuple[IntArray, FloatArray] | None = None,
 ) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
     """Nearest vehicle ahead / behind on each vehicle's section-limited virtual lane.
 
@@ -211,7 +222,7 @@ def section_neighbours(
     indices into ``view``'s vehicles (-1 if none) and distances [m] (``inf`` if none).
     Uncontrolled vehicles have neither.
     """
-    sec = section_view(network, config, active, lane, s)
+    sec = section_view(network, config, active, lane, s, prev_s)
     n = view.n_vehicles
     front = np.full(n, -1, dtype=np.int64)
     back = np.full(n, -1, dtype=np.int64)

@@ -179,20 +179,36 @@ def test_same_lane_threshold_is_7_53_m_with_v_min_5() -> None:
     assert same_lane_threshold_m(REL_1X1) == pytest.approx(7.5333, abs=1e-4)
 
 
-def test_same_lane_rule_uses_the_centre() -> None:
-    # follower 7 m behind its leader (< 7.53 m) brakes at -3 only more than 50 m before the
-    # reference: s = 97 is 53 m before the centre (150) but 48 m before the first conflict point
-    # (145); s = 102 is within 50 m of both.
-    def accel(s_f: float, reference: str) -> float:
-        sim = released_sim(header_rule=False, same_lane_rule_reference=reference)
-        place(sim, [(EAST, s_f, 10.0), (EAST, s_f + 7.0, 10.0)])
+def test_same_lane_rule_released_form() -> None:
+    # follower 6 m behind its leader brakes at -3 only more than 50 m before the reference:
+    # s = 97 is 53 m before the centre (150) but 48 m before the first conflict point (145);
+    # s = 102 is within 50 m of both.
+    def accel(s_f: float, gap: float, form: str) -> float:
+        sim = released_sim(header_rule=False, same_lane_rule_form=form)
+        place(sim, [(EAST, s_f, 10.0), (EAST, s_f + gap, 10.0)])
         sim.step()
         return float(sim.a[0, 0])
 
-    assert accel(97.0, "centre") == pytest.approx(-3.0)
-    assert accel(97.0, "conflict_point") != pytest.approx(-3.0)
-    assert accel(102.0, "centre") != pytest.approx(-3.0)
-    assert accel(90.0, "conflict_point") == pytest.approx(-3.0)
+    assert accel(97.0, 6.0, "released") == pytest.approx(-3.0)
+    assert accel(97.0, 6.0, "project") != pytest.approx(-3.0)
+    assert accel(102.0, 6.0, "released") != pytest.approx(-3.0)
+    assert accel(90.0, 6.0, "project") == pytest.approx(-3.0)
+    # released form: the leader moves first (nothing ahead: +3, 1.015 m), so a 7 m gap reads
+    # 8.015 m > 7.53 m and the follower does not brake; the project form reads 7 m and brakes.
+    assert accel(90.0, 7.0, "released") != pytest.approx(-3.0)
+    assert accel(90.0, 7.0, "project") == pytest.approx(-3.0)
+
+
+def test_same_lane_rule_released_form_is_not_softened_by_the_edge() -> None:
+    # the rule brakes at -3; an edge action of -1 agrees in sign, so the fusion max(-1, -3)
+    # softens it to -1 when the rule acts before the fusion (project form), not after it.
+    for form, expected in (("released", -3.0), ("project", -1.0)):
+        sim = released_sim(scheme="EE", edge_sv_gate=None, same_lane_rule_form=form)
+        place(sim, [(EAST, 80.0, 10.0), (EAST, 86.0, 10.0)])
+        edge = np.full(sim.active.shape, np.nan)
+        edge[0, 0] = -1.0
+        sim.step(edge_accel=edge)
+        assert sim.a[0, 0] == pytest.approx(expected)
 
 
 # --- 7: entry -------------------------------------------------------------------------------
@@ -237,3 +253,23 @@ def test_released_run_keeps_the_accounting() -> None:
             sim.arrived, sim.queued + sim.in_network + sim.exited + sim.collided
         )
     assert (sim.exited > 0).all()
+
+
+def test_section_entry_lag_hides_a_vehicle_that_just_entered() -> None:
+    # a northbound vehicle at its entry (s = 0) projects at 155 + (0 - 145) = 10 on the
+    # eastbound lane, 90 m behind the eastbound vehicle at 100
+    for lag, expected in ((True, math.inf), (False, 90.0)):
+        sim = released_sim(section_entry_lag=lag)
+        place(sim, [(EAST, 100.0, 10.0), (NORTH, 0.0, 10.0)])
+        assert sim.safety.d_back[0] == pytest.approx(expected)
+
+
+def test_accel_record_commanded() -> None:
+    # a lone vehicle (header: +3) at 12.9 m/s reaches v_max within the step: the project records
+    # the applied 1.0 m/s^2, the released code the commanded 3; at v_max it records 0.
+    for record, expected in (("applied", 1.0), ("commanded", 3.0)):
+        sim = released_sim(accel_record=record)
+        place(sim, [(EAST, 50.0, 12.9), (WEST, 50.0, 13.0)])
+        sim.step()
+        assert sim.a[0, 0] == pytest.approx(expected)
+        assert sim.a[0, 1] == 0.0
