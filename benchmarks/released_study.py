@@ -1,0 +1,184 @@
+"""The released model (``model="released"``) and its behaviours, measured one by one.
+
+Runs MiVeCC-E on the 3x3 grid, seeds as one batch (``Simulator(config, batch_size=3,
+seed=[0, 1, 2])``), and reports strict collision events (any two vehicles closer than 2 m) and
+the released-style velocity (455 m on 3x3: from entry to 5 m past the last intersection centre,
+no entry wait, 455 m / mean passing time) beside this project's 600 m travel velocity.
+
+Parts:
+    released   -- the released variant at 300, 900, 1500, 2100 veh/lane/h;
+    divergence -- at 2100: each released behaviour switched off alone from the released preset
+                  and switched on alone over the paper preset;
+    consistent -- candidate physically consistent defaults (no speed reset, entry clearance
+                  kept: every vehicle within its velocity and acceleration bounds) at the four
+                  densities.
+
+Usage (one command; progress on stderr; CSV + markdown under
+benchmarks/results/released_study/, the markdown also copied to docs/results/)::
+
+    python benchmarks/released_study.py [--steps 3000] [--parts released divergence consistent]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import shutil
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.model_presets import PAPER, RELEASED
+from mivecc_env.sim.core import Simulator
+
+ROOT = Path(__file__).resolve().parent
+OUT = ROOT / "results" / "released_study"
+DOCS = ROOT.parent / "docs" / "results"
+DENSITIES = (300, 900, 1500, 2100)
+SEEDS = (0, 1, 2)
+
+#: Released behaviours as groups of fields (docs/model.md, divergence table).
+BEHAVIOURS: dict[str, tuple[str, ...]] = {
+    "1 speed reset": ("speed_reset",),
+    "2 sections": ("sections",),
+    "3 section virtual lanes": ("section_virtual_lanes", "section_entry_lag"),
+    "4 header rule": ("header_rule",),
+    "5 SV epsilons, TTC offset, a record": (
+        "sv_d_epsilon", "sv_acc_epsilon", "sv_no_front_distance_m", "ttc_closing_offset_mps",
+        "accel_record",
+    ),
+    "6 same-lane rule (released form)": ("same_lane_rule", "same_lane_rule_form"),
+    "7a v_min 5": ("v_min_mps",),
+    "7b entry: a_max, no clearance": ("entry_accel_mps2", "entry_clearance_m"),
+}
+
+#: Candidate physically consistent defaults: no speed reset, clearance kept.
+CONSISTENT: dict[str, dict[str, Any]] = {
+    "paper (today's default)": {},
+    "all but reset & no-clearance": {
+        **RELEASED, "speed_reset": False, "entry_clearance_m": PAPER["entry_clearance_m"],
+        "model": "paper",
+    },
+    "all but reset, no-clearance, sections": {
+        **RELEASED, "speed_reset": False, "entry_clearance_m": PAPER["entry_clearance_m"],
+        "sections": False, "model": "paper",
+    },
+    "same-lane (released) + SV eps + v_min 5": {
+        "same_lane_rule": True, "same_lane_rule_form": "released", "sv_d_epsilon": 1e-4,
+        "sv_acc_epsilon": 1e-7, "sv_no_front_distance_m": 100.0,
+        "ttc_closing_offset_mps": 0.1, "v_min_mps": 5.0,
+    },
+}
+
+
+def run(config: MiVeCCConfig, steps: int) -> dict[str, float]:
+    """Run the 3 seeds as one batch; strict collisions and both velocities."""
+    sim = Simulator(config, batch_size=len(SEEDS), seed=list(SEEDS))
+    net = sim.network
+    # released-style line: 5 m past the last intersection centre of each lane
+    line = np.nanmax(np.where(np.isfinite(net.lane_centres_s), net.lane_centres_s, np.nan),
+                     axis=1) + config.section_control_end_m
+    dist = float(line[0])
+    times: list[np.ndarray] = []
+    dt = config.dt_s
+    for _ in range(steps):
+        s0, vid0, act0 = sim.s.copy(), sim.vid.copy(), sim.active.copy()
+        t0 = sim.time_s
+        sim.step()
+        if sim.s.shape != s0.shape:  # capacity grew: compare the old slots only
+            k = s0.shape[1]
+            s1, vid1, act1 = sim.s[:, :k], sim.vid[:, :k], sim.active[:, :k]
+            ent = sim.t_enter[:, :k]
+        else:
+            s1, vid1, act1, ent = sim.s, sim.vid, sim.active, sim.t_enter
+        thr = line[sim.lane[:, : s0.shape[1]]]
+        same = act0 & act1 & (vid0 == vid1)
+        cross = same & (s0 < thr) & (s1 >= thr)
+        if cross.any():
+            frac = (thr[cross] - s0[cross]) / np.maximum(s1[cross] - s0[cross], 1e-12)
+            times.append(t0 + frac * dt - ent[cross])
+    passing = np.concatenate(times) if times else np.zeros(0)
+    exited = sim.exited.sum()
+    return {
+        "collisions": int(sim.collision_events.sum()),
+        "collided_vehicles": int(sim.collided.sum()),
+        "arrived": int(sim.arrived.sum()),
+        "released_velocity_mps": dist / passing.mean() if passing.size else float("nan"),
+        "travel_velocity_mps": float(sim.sum_travel_velocity.sum() / max(exited, 1)),
+    }
+
+
+def cell(label: str, part: str, density: int, overrides: dict[str, Any], steps: int,
+         rows: list[dict[str, Any]]) -> None:
+    t = time.time()
+    cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=float(density), scheme="E", **overrides)
+    res = run(cfg, steps)
+    rows.append({"part": part, "variant": label, "density": density, **res})
+    print(f"[{part}] {label} @ {density}: {res['collisions']} collisions, "
+          f"v455 {res['released_velocity_mps']:.3f} m/s, v600 {res['travel_velocity_mps']:.3f} "
+          f"({time.time() - t:.0f} s)", file=sys.stderr, flush=True)
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=int, default=3000)
+    ap.add_argument("--parts", nargs="+", default=["released", "divergence", "consistent"],
+                    choices=["released", "divergence", "consistent"])
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args(argv)
+    rows: list[dict[str, Any]] = []
+    if "released" in args.parts:
+        for d in DENSITIES:
+            cell("released", "released", d, {"model": "released"}, args.steps, rows)
+    if "divergence" in args.parts:
+        cell("released", "divergence", 2100, {"model": "released"}, args.steps, rows)
+        cell("paper", "divergence", 2100, {}, args.steps, rows)
+        for name, fields in BEHAVIOURS.items():
+            off = {"model": "released", **{f: PAPER[f] for f in fields}}
+            on = {f: RELEASED[f] for f in fields}
+            cell(f"released without {name}", "divergence", 2100, off, args.steps, rows)
+            cell(f"paper with {name}", "divergence", 2100, on, args.steps, rows)
+    if "consistent" in args.parts:
+        for name, over in CONSISTENT.items():
+            for d in DENSITIES:
+                cell(name, "consistent", d, over, args.steps, rows)
+    write(rows, args)
+
+
+def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "released_study.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    cmd = "python benchmarks/released_study.py " + " ".join(
+        ["--steps", str(args.steps), "--parts", *args.parts])
+    lines = [
+        "# Released model study (MiVeCC-E, 3x3, seeds 0-2 as one batch)", "",
+        f"Command: `{cmd}`. {args.steps} steps per cell. Collisions: strict events (any two "
+        "vehicles closer than 2 m), summed over the 3 seeds. v455: released-style velocity "
+        "(455 m / mean passing time from entry to 5 m past the last centre, no entry wait); "
+        "v600: this project's average travel velocity (600 m lane, entry wait included).", "",
+        "| part | variant | density | collisions | v455 [m/s] | v600 [m/s] | arrived |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['part']} | {r['variant']} | {r['density']} | {r['collisions']} | "
+            f"{r['released_velocity_mps']:.3f} | {r['travel_velocity_mps']:.3f} | "
+            f"{r['arrived']} |"
+        )
+    md = args.out / "released_study.md"
+    md.write_text("\n".join(lines) + "\n")
+    if args.out == OUT:
+        DOCS.mkdir(parents=True, exist_ok=True)
+        shutil.copy(md, DOCS / "released_study.md")
+    print(f"wrote {md}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
