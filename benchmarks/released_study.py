@@ -2,11 +2,14 @@
 
 Runs MiVeCC-E on the 3x3 grid, seeds as one batch (``Simulator(config, batch_size=3,
 seed=[0, 1, 2])``), and reports strict collision events (any two vehicles closer than 2 m) and
-the released-style velocity (455 m on 3x3: from entry to 5 m past the last intersection centre,
-no entry wait, 455 m / mean passing time) beside this project's 600 m travel velocity.
+the released-style velocity (``released_velocity_mps`` of ``sim/passing.py``: 455 m on 3x3,
+from entry to 5 m past the last intersection centre, no entry wait, 455 m / mean passing time)
+beside this project's 600 m travel velocity, and near-miss figures (``sim/near_miss.py``).
 
 Parts:
     released   -- the released variant at 300, 900, 1500, 2100 veh/lane/h;
+    schemes    -- E, EE and EEC with the shipped policies under the released variant (one env
+                  per seed, ``mivecc_agents.evaluation.evaluate_scheme``; slow);
     divergence -- at 2100: each released behaviour switched off alone from the released preset
                   and switched on alone over the paper preset;
     consistent -- candidate physically consistent defaults (no speed reset, entry clearance
@@ -29,8 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from mivecc_env import metrics
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.model_presets import PAPER, RELEASED
 from mivecc_env.sim.core import Simulator
@@ -75,65 +77,94 @@ CONSISTENT: dict[str, dict[str, Any]] = {
 }
 
 
+def _near_miss(summaries: list[dict[str, float]]) -> dict[str, float]:
+    return {
+        "min_ttc_s": min(s["min_ttc_s"] for s in summaries),
+        "min_pet_s": min(s["min_pet_s"] for s in summaries),
+        "pet_under_1s": sum(s["pet_under_1s"] for s in summaries),
+        "min_distance_m": min(s["min_distance_m"] for s in summaries),
+    }
+
+
 def run(config: MiVeCCConfig, steps: int) -> dict[str, float]:
-    """Run the 3 seeds as one batch; strict collisions and both velocities."""
+    """Run the 3 seeds as one batch: strict collisions, both velocities, near-miss figures."""
     sim = Simulator(config, batch_size=len(SEEDS), seed=list(SEEDS))
-    net = sim.network
-    # released-style line: 5 m past the last intersection centre of each lane
-    line = np.nanmax(np.where(np.isfinite(net.lane_centres_s), net.lane_centres_s, np.nan),
-                     axis=1) + config.section_control_end_m
-    dist = float(line[0])
-    times: list[np.ndarray] = []
-    dt = config.dt_s
     for _ in range(steps):
-        s0, vid0, act0 = sim.s.copy(), sim.vid.copy(), sim.active.copy()
-        t0 = sim.time_s
         sim.step()
-        if sim.s.shape != s0.shape:  # capacity grew: compare the old slots only
-            k = s0.shape[1]
-            s1, vid1, act1 = sim.s[:, :k], sim.vid[:, :k], sim.active[:, :k]
-            ent = sim.t_enter[:, :k]
-        else:
-            s1, vid1, act1, ent = sim.s, sim.vid, sim.active, sim.t_enter
-        thr = line[sim.lane[:, : s0.shape[1]]]
-        same = act0 & act1 & (vid0 == vid1)
-        cross = same & (s0 < thr) & (s1 >= thr)
-        if cross.any():
-            frac = (thr[cross] - s0[cross]) / np.maximum(s1[cross] - s0[cross], 1e-12)
-            times.append(t0 + frac * dt - ent[cross])
-    passing = np.concatenate(times) if times else np.zeros(0)
     exited = sim.exited.sum()
+    summaries = [metrics.episode_summary(sim, b) for b in range(len(SEEDS))]
     return {
         "collisions": int(sim.collision_events.sum()),
         "collided_vehicles": int(sim.collided.sum()),
         "arrived": int(sim.arrived.sum()),
-        "released_velocity_mps": dist / passing.mean() if passing.size else float("nan"),
+        # pooled over the seeds: sum of path lengths / sum of passing times (455 m / mean time)
+        "released_velocity_mps": float(
+            sim.passing.sum_length_m.sum() / max(sim.passing.sum_time_s.sum(), 1e-12)
+        ),
         "travel_velocity_mps": float(sim.sum_travel_velocity.sum() / max(exited, 1)),
+        **_near_miss(summaries),
+    }
+
+
+def run_scheme(scheme: str, density: int, steps: int) -> dict[str, float]:
+    """One scheme with the shipped policies under ``model="released"``, one env per seed."""
+    from mivecc_agents.evaluation import evaluate_scheme
+    from mivecc_agents.policies import pretrained_policies
+
+    policies = pretrained_policies()
+    res = [
+        evaluate_scheme(scheme, 3, 3, density, steps, seed, policies=policies, progress=False,
+                        model="released")
+        for seed in SEEDS
+    ]
+    passed = sum(r["released_passed"] for r in res)
+    # pooled 455 m / mean passing time (every lane's mark is 455 m on 3x3)
+    mean_time = sum(r["released_passed"] * 455.0 / r["released_velocity_mps"]
+                    for r in res if r["released_passed"]) / max(passed, 1)
+    thr = sum(r["throughput"] for r in res)
+    return {
+        "collisions": int(sum(r["collisions"] for r in res)),
+        "collided_vehicles": int(sum(r["collided_vehicles"] for r in res)),
+        "arrived": int(sum(r["arrived"] for r in res)),
+        "released_velocity_mps": 455.0 / mean_time if passed else float("nan"),
+        "travel_velocity_mps": sum(r["avg_travel_velocity_mps"] * r["throughput"]
+                                   for r in res) / max(thr, 1),
+        **_near_miss(res),
     }
 
 
 def cell(label: str, part: str, density: int, overrides: dict[str, Any], steps: int,
-         rows: list[dict[str, Any]]) -> None:
+         rows: list[dict[str, Any]], scheme: str = "E") -> None:
     t = time.time()
-    cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=float(density), scheme="E", **overrides)
-    res = run(cfg, steps)
+    if part == "schemes":
+        res = run_scheme(scheme, density, steps)
+    else:
+        cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=float(density), scheme="E", **overrides)
+        res = run(cfg, steps)
     rows.append({"part": part, "variant": label, "density": density, **res})
     print(f"[{part}] {label} @ {density}: {res['collisions']} collisions, "
-          f"v455 {res['released_velocity_mps']:.3f} m/s, v600 {res['travel_velocity_mps']:.3f} "
-          f"({time.time() - t:.0f} s)", file=sys.stderr, flush=True)
+          f"v455 {res['released_velocity_mps']:.3f} m/s, v600 {res['travel_velocity_mps']:.3f}, "
+          f"min TTC {res['min_ttc_s']:.2f} s, min PET {res['min_pet_s']:.2f} s, "
+          f"min dist {res['min_distance_m']:.2f} m ({time.time() - t:.0f} s)",
+          file=sys.stderr, flush=True)
 
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=3000)
     ap.add_argument("--parts", nargs="+", default=["released", "divergence", "consistent"],
-                    choices=["released", "divergence", "consistent"])
+                    choices=["released", "schemes", "divergence", "consistent"])
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
     if "released" in args.parts:
         for d in DENSITIES:
             cell("released", "released", d, {"model": "released"}, args.steps, rows)
+    if "schemes" in args.parts:
+        for scheme in ("E", "EE", "EEC"):
+            for d in DENSITIES:
+                cell(f"released {scheme} (shipped policies)", "schemes", d, {}, args.steps, rows,
+                     scheme)
     if "divergence" in args.parts:
         cell("released", "divergence", 2100, {"model": "released"}, args.steps, rows)
         cell("paper", "divergence", 2100, {}, args.steps, rows)
@@ -163,14 +194,19 @@ def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
         "vehicles closer than 2 m), summed over the 3 seeds. v455: released-style velocity "
         "(455 m / mean passing time from entry to 5 m past the last centre, no entry wait); "
         "v600: this project's average travel velocity (600 m lane, entry wait included).", "",
-        "| part | variant | density | collisions | v455 [m/s] | v600 [m/s] | arrived |",
-        "|---|---|---|---|---|---|---|",
+        "Near misses over the 3 seeds: minimum TTC on the virtual lanes, minimum PET at the "
+        "conflict points and its count under 1 s, minimum centre distance of any two vehicles.",
+        "",
+        "| part | variant | density | collisions | v455 [m/s] | v600 [m/s] | min TTC [s] | "
+        "min PET [s] | PET < 1 s | min distance [m] | arrived |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['part']} | {r['variant']} | {r['density']} | {r['collisions']} | "
             f"{r['released_velocity_mps']:.3f} | {r['travel_velocity_mps']:.3f} | "
-            f"{r['arrived']} |"
+            f"{r['min_ttc_s']:.2f} | {r['min_pet_s']:.2f} | {int(r['pet_under_1s'])} | "
+            f"{r['min_distance_m']:.2f} | {r['arrived']} |"
         )
     md = args.out / "released_study.md"
     md.write_text("\n".join(lines) + "\n")
