@@ -225,6 +225,12 @@ class MiVeCCConfig:
         "lanes on the step it enters the network or a new section (released code: it files a "
         "vehicle under its section one step late and adds new vehicles after the SV pass)"
     )
+    stale_action: bool = _choice(
+        False, (False, True), "a vehicle left out of the virtual lanes this step (uncontrolled, "
+        "or unseen after entering a section) acts on its last computed a_end, without the header "
+        "rule; under speed_reset it moves with it before v is set back to v_max (released code: "
+        "it keeps its last SV, so it can enter the next section slightly below v_max)"
+    )
     speed_reset: bool = _choice(
         False, (False, True), "every vehicle past a section's controlled part (until the next "
         "section) and on exit links drives at v_max, set instantly, no rule acting (released "

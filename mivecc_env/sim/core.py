@@ -149,6 +149,11 @@ class Simulator:
         self.signal_phases = (SignalPhases(self.config, self.network, self.batch_size)
                               if self.config.control == "signalized" else None)
         self._prev_s: tuple[IntArray, FloatArray] | None = None  # (slots, s) before the move
+        self._seen: NDArray[np.bool_] | None = None  # on a section virtual lane (view order)
+        # stale_action: SV and nearest vehicle's distance to the section centre [m] of the last
+        # step on a virtual lane
+        self._sv_last = np.zeros(shape)
+        self._closer_last = np.zeros(shape)
         self._refresh_view()
 
     def reset_at(self, env_index: Sequence[int] | np.ndarray, seeds: Sequence[int]) -> None:
@@ -257,6 +262,8 @@ class Simulator:
                 self.network, c, view, self.active, self.lane, self.s, self._prev_s
             )
             d_front, d_back = neighbours[2], neighbours[3]
+            self._seen = neighbours[4]
+            neighbours = neighbours[:4]
         fast = None
         if neighbours is None and c.ttc_closing_offset_mps == 0.0:
             fast = step_kernels.safety_inputs(
@@ -385,6 +392,15 @@ class Simulator:
                  else cloud_accel.ravel()[view.vehicle])
         overrides = c.header_rule or c.sections or c.speed_reset
         ctrl = sections.controlled(self.network, c, view.lane, s) if overrides else None
+        seen = None
+        if c.stale_action:  # released code: off the virtual lanes, the last a_end is kept
+            seen = ctrl if ctrl is not None else np.ones(s.shape, dtype=bool)
+            if c.section_virtual_lanes and self._seen is not None:
+                seen = self._seen | (s == 0.0)
+            a_end = sections.stale_action(
+                self.network, c, view, s, seen, a_end, safety.sv, safety.d_front,
+                safety.d_back, self._sv_last.ravel(), self._closer_last.ravel(),
+            )
         rule = None
         if c.same_lane_rule:
             has_lead = view.leader >= 0
@@ -413,7 +429,7 @@ class Simulator:
                 a_rule = a_end if rule is None else rule(a_end, s)
                 accel = end_node.fuse(a_rule, safety.sv, edge, cloud, c)
             if overrides:
-                accel = sections.control_overrides(accel, ctrl, safety.d_front, c)
+                accel = sections.control_overrides(accel, ctrl, safety.d_front, c, seen)
             if k + 1 < passes:
                 lead_s = end_node.bounded_motion(
                     s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
@@ -513,7 +529,8 @@ class Simulator:
         new_cap = max(2 * self.capacity, needed + 16)
         pad = new_cap - self.capacity
         for name, fill in (("active", False), ("lane", 0), ("s", 0.0), ("v", 0.0), ("a", 0.0),
-                           ("t_arrive", 0.0), ("t_enter", 0.0), ("vid", -1)):
+                           ("t_arrive", 0.0), ("t_enter", 0.0), ("vid", -1),
+                           ("_sv_last", 0.0), ("_closer_last", 0.0)):
             arr = getattr(self, name)
             setattr(self, name, np.pad(arr, ((0, 0), (0, pad)), constant_values=fill))
 

@@ -63,7 +63,8 @@ def apply_same_lane_rule(
     More than ``same_lane_rule_horizon_m`` before the next conflict point, a vehicle closer than
     :func:`same_lane_threshold_m` to its own-lane leader brakes at ``-a_max`` (``0`` if its
     follower is that close too); one whose follower is that close accelerates at ``+a_max``.
-    A vehicle with nothing ahead on its virtual lane accelerates at ``+a_max``.
+    A vehicle with nothing ahead on its virtual lane accelerates at ``+a_max`` (project form;
+    the released form leaves that to ``header_rule``).
     """
     thr = same_lane_threshold_m(config)
     far = to_conflict_m > config.same_lane_rule_horizon_m
@@ -71,6 +72,8 @@ def apply_same_lane_rule(
     close_follow = far & (follower_gap_m < thr)
     out = np.where(close_follow, config.a_max_mps2, a_end)
     out = np.where(close_lead, np.where(close_follow, 0.0, -config.a_max_mps2), out)
+    if config.same_lane_rule_form == "released":  # its first vehicle: the header rule instead
+        return out
     return np.where(np.isinf(d_front_m), config.a_max_mps2, out)
 
 

@@ -95,22 +95,57 @@ def control_overrides(
     is_controlled: BoolArray,
     d_front_m: FloatArray,
     config: MiVeCCConfig,
+    seen: BoolArray | None = None,
 ) -> FloatArray:
     """Acceleration [m/s^2] after the released code's overrides, applied after all fusion.
 
     * ``header_rule``: a controlled vehicle with nothing ahead on its virtual lane
       (``d_front = inf``) gets ``+a_max``, whatever the rule, edge or cloud said;
     * ``sections``: an uncontrolled vehicle gets ``0`` under ``speed_reset`` (it already drives
-      at ``v_max``) and ``+a_max`` otherwise.
+      at ``v_max``; with ``stale_action`` it keeps ``accel``, its last action) and ``+a_max``
+      otherwise.
+
+    ``seen``: vehicles on a virtual lane this step (``stale_action``); only they can be headers.
     """
     a_max = config.a_max_mps2
     out = accel
     if config.header_rule:
-        out = np.where(is_controlled & np.isinf(d_front_m), a_max, out)
+        head = is_controlled & np.isinf(d_front_m)
+        if seen is not None:
+            head &= seen
+        out = np.where(head, a_max, out)
     if config.sections or config.speed_reset:
-        free = 0.0 if config.speed_reset else a_max
-        out = np.where(is_controlled, out, free)
+        if not (config.speed_reset and config.stale_action):
+            free = 0.0 if config.speed_reset else a_max
+            out = np.where(is_controlled, out, free)
     return out
+
+
+def stale_action(
+    network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView, s: FloatArray,
+    seen: BoolArray, a_end: FloatArray, sv: FloatArray, d_front_m: FloatArray,
+    d_back_m: FloatArray, sv_last: FloatArray, closer_last: FloatArray,
+) -> FloatArray:
+    """``a_end`` [m/s^2] with the released code's stale action (``stale_action=True``).
+
+    A vehicle on a virtual lane this step (``seen``) records its SV and where its nearest
+    vehicle is, as a distance to its section's centre (150 m with no neighbour, as there). One
+    that is not acts on the recorded SV, judging the nearest vehicle ahead when that recorded
+    distance is below its *current* distance to its (possibly new) section's centre, as the
+    released code compares the two across sections. ``sv_last`` / ``closer_last``: flat
+    per-slot records, updated in place.
+    """
+    to_centre = distance_to_section_centre(network, config, view.lane, s)
+    ahead = d_front_m <= d_back_m
+    closer_pos = np.where(ahead, s + d_front_m, s - d_back_m)
+    closer = np.where(np.isfinite(np.minimum(d_front_m, d_back_m)),
+                      to_centre - (closer_pos - s), 150.0)
+    slots = view.vehicle
+    sv_last[slots[seen]] = sv[seen]
+    closer_last[slots[seen]] = closer[seen]
+    ratio = sv_last[slots] / config.eta
+    stale = np.where(closer_last[slots] < to_centre, ratio, np.abs(ratio))
+    return np.where(seen, a_end, stale)
 
 
 def apply_speed_reset(
@@ -215,12 +250,12 @@ def section_view(
 def section_neighbours(
     network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView, active: BoolArray,
     lane: IntArray, s: FloatArray, prev_s: tuple[IntArray, FloatArray] | None = None,
-) -> tuple[IntArray, IntArray, FloatArray, FloatArray]:
+) -> tuple[IntArray, IntArray, FloatArray, FloatArray, BoolArray]:
     """Nearest vehicle ahead / behind on each vehicle's section-limited virtual lane.
 
-    Returns ``(front, back, d_front, d_back)`` in the order of ``view`` (the full view):
-    indices into ``view``'s vehicles (-1 if none) and distances [m] (``inf`` if none).
-    Uncontrolled vehicles have neither.
+    Returns ``(front, back, d_front, d_back, member)`` in the order of ``view`` (the full
+    view): indices into ``view``'s vehicles (-1 if none), distances [m] (``inf`` if none) and
+    whether the vehicle is on a section virtual lane at all. Uncontrolled vehicles are not.
     """
     sec = section_view(network, config, active, lane, s, prev_s)
     n = view.n_vehicles
@@ -228,8 +263,9 @@ def section_neighbours(
     back = np.full(n, -1, dtype=np.int64)
     d_front = np.full(n, np.inf)
     d_back = np.full(n, np.inf)
+    member = np.zeros(n, dtype=bool)
     if sec.n_vehicles == 0:
-        return front, back, d_front, d_back
+        return front, back, d_front, d_back, member
     # Both views list vehicles in increasing flat slot order.
     to_main = np.searchsorted(view.vehicle, sec.vehicle)
     pv = to_main[sec.point_vehicle]
@@ -237,4 +273,5 @@ def section_neighbours(
     back[to_main] = np.where(sec.back_point >= 0, pv[np.maximum(sec.back_point, 0)], -1)
     d_front[to_main] = sec.d_front
     d_back[to_main] = sec.d_back
-    return front, back, d_front, d_back
+    member[to_main] = True
+    return front, back, d_front, d_back, member

@@ -124,12 +124,15 @@ def test_section_virtual_lane_hides_the_leader_in_the_next_section() -> None:
 
 # --- 4: header rule -------------------------------------------------------------------------
 def test_header_rule_overrides_rule_and_edge() -> None:
-    cfg = REL_1X1
-    a = sections.control_overrides(
-        np.array([-3.0, -3.0, -3.0]), np.array([True, True, False]),
-        np.array([np.inf, 5.0, np.inf]), cfg,
-    )
-    assert a.tolist() == [3.0, -3.0, 0.0]
+    args = (np.array([-3.0, -3.0, -3.0]), np.array([True, True, False]),
+            np.array([np.inf, 5.0, np.inf]))
+    # uncontrolled under speed_reset: a = 0, or its last action with stale_action
+    assert sections.control_overrides(*args, REL_1X1.replace(stale_action=False)).tolist() == [
+        3.0, -3.0, 0.0]
+    assert sections.control_overrides(*args, REL_1X1).tolist() == [3.0, -3.0, -3.0]
+    # a vehicle off the virtual lanes this step is never a header
+    seen = np.array([False, True, False])
+    assert sections.control_overrides(*args, REL_1X1, seen).tolist() == [-3.0, -3.0, -3.0]
     # in the simulator, an edge command of -3 for the lone first vehicle is overridden
     sim = released_sim(scheme="EE", edge_sv_gate=None)
     place(sim, [(EAST, 50.0, 10.0)])
@@ -273,3 +276,36 @@ def test_accel_record_commanded() -> None:
         sim.step()
         assert sim.a[0, 0] == pytest.approx(expected)
         assert sim.a[0, 1] == 0.0
+
+
+def test_stale_action_in_the_speed_reset_band() -> None:
+    # eastbound, centre at 150: the vehicle is last seen at s = 154.0 with a northbound vehicle
+    # at 147 projected 3 m ahead (155 + 2; SV < 0, nearest ahead: a_end = SV / 3 < 0). Past
+    # 155 it is off the virtual lanes: with
+    # stale_action it keeps braking with that a_end during its move (then v is reset to 13);
+    # without, it drives at 13 m/s with a = 0.
+    for stale in (True, False):
+        sim = released_sim(stale_action=stale)
+        place(sim, [(EAST, 154.0, 13.0), (NORTH, 147.0, 13.0)])
+        sv0 = float(sim.safety.sv[0])
+        assert sv0 < 0
+        sim.step()  # seen: a_end = sv0 / 3, now at 155.3 (uncontrolled)
+        s1 = float(sim.s[0, 0])
+        sim.step()  # unseen
+        a = sv0 / 3.0
+        if stale:
+            assert sim.a[0, 0] == pytest.approx(a)
+            assert sim.s[0, 0] == pytest.approx(s1 + 1.3 + 0.5 * a * 0.01)
+        else:
+            assert sim.a[0, 0] == 0.0 and sim.s[0, 0] == pytest.approx(s1 + 1.3)
+        assert sim.v[0, 0] == 13.0
+
+
+def test_released_same_lane_rule_leaves_the_first_vehicle_to_the_header_rule() -> None:
+    # a vehicle with nothing ahead and the header rule off: the project form still gives +a_max
+    for form, expected in (("project", 10.0), ("released", 20.0 / 3.0)):
+        sim = released_sim(header_rule=False, same_lane_rule_form=form, a_max_mps2=10.0,
+                           entry_accel_mps2=0.0)
+        place(sim, [(EAST, 50.0, 10.0)])
+        sim.step()
+        assert sim.a[0, 0] == pytest.approx(expected)
