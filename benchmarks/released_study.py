@@ -154,14 +154,16 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--parts", nargs="+", default=["released", "divergence", "consistent"],
                     choices=["released", "schemes", "divergence", "consistent"])
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--densities", type=int, nargs="+", default=list(DENSITIES),
+                    help="densities of the released, schemes and consistent parts [veh/lane/h]")
     args = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
     if "released" in args.parts:
-        for d in DENSITIES:
+        for d in args.densities:
             cell("released", "released", d, {"model": "released"}, args.steps, rows)
     if "schemes" in args.parts:
         for scheme in ("E", "EE", "EEC"):
-            for d in DENSITIES:
+            for d in args.densities:
                 cell(f"released {scheme} (shipped policies)", "schemes", d, {}, args.steps, rows,
                      scheme)
     if "divergence" in args.parts:
@@ -174,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
             cell(f"paper with {name}", "divergence", 2100, on, args.steps, rows)
     if "consistent" in args.parts:
         for name, over in CONSISTENT.items():
-            for d in DENSITIES:
+            for d in args.densities:
                 cell(name, "consistent", d, over, args.steps, rows)
     write(rows, args)
 
@@ -186,7 +188,8 @@ def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
         w.writeheader()
         w.writerows(rows)
     cmd = "python benchmarks/released_study.py " + " ".join(
-        ["--steps", str(args.steps), "--parts", *args.parts])
+        ["--steps", str(args.steps), "--parts", *args.parts,
+         "--densities", *map(str, args.densities)])
     lines = [
         "# Released model study (MiVeCC-E, 3x3, seeds 0-2 as one batch)", "",
         f"Command: `{cmd}`. {args.steps} steps per cell. Collisions: strict events (any two "

@@ -43,6 +43,7 @@ RELEASED: dict[str, Any] = {
     "edge_sv_gate": -2.0,  # 8
     "edge_selection": "random",  # 8 (test time; the released training picks the lowest SV)
     "reward_sv_weight": 1.0,  # edge reward: mean SV with weight 1
+    "cloud_pick_population": "before_last_centre",  # 9: cloud picks before the last centre
 }
 
 #: The same fields at this project's defaults (the paper reading).
@@ -66,6 +67,7 @@ PAPER: dict[str, Any] = {
     "edge_sv_gate": None,
     "edge_selection": "lowest_sv",
     "reward_sv_weight": 0.05,
+    "cloud_pick_population": "conflict_ahead",
 }
 
 MODEL_PRESETS: dict[str, dict[str, Any]] = {"paper": PAPER, "released": RELEASED}
