@@ -32,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from mivecc_env import metrics
 from mivecc_env import signal_agents as signal_agents_mod
+from mivecc_env.actions import checked_action
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim import edge_selection, sections
 from mivecc_env.sim.core import Simulator, StepEvents
@@ -253,8 +254,9 @@ class BatchedMiVeCCEnv:
 
         Raises:
             RuntimeError: ``reset`` has not been called.
-            ValueError: an action of the wrong shape, not finite, or outside
-                ``[-a_max, a_max]`` (the message names the argument); a signal action
+            ValueError: an action of the wrong shape, NaN/inf in a real column, or outside
+                ``[-a_max, a_max]`` (the message names the argument; rule:
+                :mod:`mivecc_env.actions`, which also accepts torch tensors); a signal action
                 without ``signal_agents``, of the wrong shape, not integer or out of range.
         """
         edge = self._checked(edge_action, "edge_action", (self.batch_size, self.n_edge,
@@ -423,26 +425,23 @@ class BatchedMiVeCCEnv:
     def _checked(
         self, action: ArrayLike | None, name: str, shape: tuple[int, ...]
     ) -> FloatArray | None:
-        """``action`` as a float64 array of ``shape`` within the box, or ``ValueError``."""
+        """``action`` as a float64 array of ``shape`` (rule: :mod:`mivecc_env.actions`).
+
+        The masks of the last observation tell the padded columns (edge masks for
+        ``edge_action``, the cloud mask for ``cloud_action``).
+        """
         if action is None:
             return None
-        lim = self.config.a_max_mps2
-        expected = f"expected shape {shape} with values in [{-lim}, {lim}] m/s^2"
-        try:
-            arr = np.asarray(action, dtype=np.float64)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"{name}: {expected}, got non-numeric "
-                             f"{type(action).__name__}") from err
-        if arr.shape != shape:
-            raise ValueError(f"{name}: {expected}, got shape {arr.shape}")
-        # NaN compares False, so this also rejects NaN and inf.
-        ok = np.abs(arr) <= self._a_limit
-        if not ok.all():
-            first = tuple(int(i) for i in np.argwhere(~ok)[0])
-            what = "NaN or inf" if not np.isfinite(arr).all() else (
-                f"min {arr.min():.3f} max {arr.max():.3f}")
-            raise ValueError(f"{name}: {expected}, got {what} (first at index {first})")
-        return arr
+        return checked_action(action, name, shape, self.config.a_max_mps2,
+                              self._action_mask(name, shape))
+
+    def _action_mask(self, name: str, shape: tuple[int, ...]) -> NDArray[Any] | None:
+        """Real-column mask of the last observation for ``name``'s action, or ``None``."""
+        last = self._last
+        if last is None:
+            return None
+        mask = last.cloud_mask if name == "cloud_action" else last.edge_mask
+        return mask if mask is not None and mask.shape == shape else None
 
 
 def _total(terms: dict[str, FloatArray]) -> FloatArray:

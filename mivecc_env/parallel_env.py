@@ -17,9 +17,11 @@ Observation spaces:
 
 Action spaces:
     ``Box(-a_max, a_max, (K,), float32)``: acceleration [m/s^2] of each column's vehicle.
-    Actions of padded columns are ignored; an agent left out of the action dict sends no action
-    (its vehicles follow the on-board rules). An unknown agent, a wrong shape, a NaN/inf or a
-    value outside the box raises ``ValueError`` naming the agent and the expected box.
+    Actions of padded columns are ignored (NaN there is accepted); an agent left out of the
+    action dict sends no action (its vehicles follow the on-board rules). An unknown agent, a
+    wrong shape, NaN/inf in a real column or a value outside the box raises ``ValueError``
+    naming the agent, the expected box and the first bad column. A torch tensor (also with
+    ``requires_grad=True``) is accepted as its values. Rule: :mod:`mivecc_env.actions`.
 
 Signal agents:
     With ``control="signalized"`` and ``signal_agents=True``, agents ``signal_i`` follow
@@ -76,6 +78,7 @@ from pettingzoo import ParallelEnv
 
 from mivecc_env import metrics
 from mivecc_env import signal_agents as sig
+from mivecc_env.actions import checked_action
 from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim.checks import check_seed
@@ -234,8 +237,9 @@ class MiVeCCParallelEnv(ParallelEnv):
 
         Raises:
             RuntimeError: ``reset`` has not been called, or the episode has ended.
-            ValueError: an unknown agent, or an action of the wrong shape, not finite or
-                outside the action box (a signal agent's: not an integer in {0, 1}).
+            ValueError: an unknown agent, or an action of the wrong shape, NaN/inf in a real
+                column, or outside the action box (:mod:`mivecc_env.actions`)
+                (a signal agent's: not an integer in {0, 1}).
         """
         if not self.agents:
             raise RuntimeError("step: call reset() first (or again after the episode ended)")
@@ -306,43 +310,37 @@ class MiVeCCParallelEnv(ParallelEnv):
     def _checked_batch(self, agents: list[str], actions: Mapping[str, Any]) -> np.ndarray:
         """(len(agents), K_edge) float64 actions of edge agents, validated as one array.
 
-        The fast path converts and checks all of them at once; on any problem each action is
-        checked on its own so that the error names the offending agent.
+        The fast path converts and checks all of them at once; on any problem (a tensor, NaN
+        in a padded column, a bad value) each action is checked on its own (:meth:`_check_action`)
+        so that the rule is applied exactly and an error names the offending agent.
         """
         try:
             acts = np.asarray([actions[a] for a in agents], dtype=np.float64)
-        except (ValueError, TypeError):
+        except (ValueError, TypeError, RuntimeError):
             acts = None
         if (
             acts is None
             or acts.shape != (len(agents), self.config.k_edge)
-            # NaN compares False, so this also rejects NaN and inf.
+            # NaN compares False, so NaN and inf take the exact path.
             or not (np.abs(acts) <= self._a_limit).all()
         ):
             acts = np.stack([self._check_action(a, actions[a]) for a in agents])
         return acts
 
     def _check_action(self, agent: str, action: Any) -> np.ndarray:
-        """``action`` as a float64 array, or ``ValueError`` naming the agent and the box."""
-        space = self._act_spaces[agent]
-        lim = self.config.a_max_mps2
-        expected = f"expected shape {space.shape} with values in [{-lim}, {lim}] m/s^2"
-        try:
-            arr = np.asarray(action, dtype=np.float64)
-        except (ValueError, TypeError) as err:
-            raise ValueError(
-                f"actions[{agent!r}]: {expected}, got non-numeric {type(action).__name__}"
-            ) from err
-        if arr.shape == space.shape and (np.abs(arr) <= self._a_limit).all():
-            return arr
-        if arr.shape != space.shape:
-            raise ValueError(f"actions[{agent!r}]: {expected}, got shape {arr.shape}")
-        if not np.isfinite(arr).all():
-            raise ValueError(f"actions[{agent!r}]: {expected}, got NaN or inf")
-        raise ValueError(
-            f"actions[{agent!r}]: {expected}, got min {arr.min():.3f} max {arr.max():.3f} "
-            "(clip exploration noise to the action box)"
-        )
+        """``action`` as a float64 array, or ``ValueError`` naming the agent and the box.
+
+        The rule is :func:`mivecc_env.actions.checked_action`; the padded columns are those of
+        the agent's last observation (``infos[agent]["mask"]``).
+        """
+        last = self._last
+        masks = None if last is None else (
+            last.cloud_mask if agent == CLOUD_AGENT else last.edge_mask)
+        mask = None if masks is None else (
+            masks[0] if agent == CLOUD_AGENT else masks[0, self._edge_index[agent]])
+        return checked_action(action, f"actions[{agent!r}]", self._act_spaces[agent].shape,
+                              self.config.a_max_mps2, mask,
+                              " (clip exploration noise to the action box)")
 
     def _observe(self) -> None:
         """Rebuild the state graphs of the current simulator state (after editing it)."""

@@ -28,6 +28,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from mivecc_env.actions import checked_action
 from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import ConfigError
 from mivecc_env.parallel_env import MiVeCCParallelEnv, edge_agent
@@ -180,7 +181,10 @@ class MiVeCCEdgeVectorEnv(VectorEnv):
         self, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """One step of every copy with ``(num_envs, K)`` accelerations [m/s^2]."""
-        act = self.env._checked(actions, "actions", self.action_space.shape)
+        last = self.env._last  # padded columns of the last observation may hold NaN
+        mask = None if last is None else last.edge_mask[:, self.intersection]
+        act = checked_action(actions, "actions", self.action_space.shape,
+                             self.env.config.a_max_mps2, mask)
         cols = np.full((self.num_envs, self.env.n_edge, self.env.k_edge), np.nan)
         cols[:, self.intersection] = act
         out = self.env.step_commands(cols, None)
