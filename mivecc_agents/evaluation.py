@@ -79,6 +79,20 @@ ZERO_ACTION_WARNING = (
 )
 
 
+def scheme_overrides(scheme: str, config_overrides: dict[str, Any]) -> dict[str, Any]:
+    """Config overrides that select ``scheme``: a MiVeCC scheme, or a comparator's control mode.
+
+    Comparators (``fixed-time``, ``reservation``, ...) run with the rules-only scheme ``E`` and
+    their control fields from :data:`COMPARATORS`.
+    """
+    overrides = dict(config_overrides)
+    if scheme in COMPARATORS:
+        overrides.update(scheme="E", **COMPARATORS[scheme])
+    else:
+        overrides["scheme"] = scheme
+    return overrides
+
+
 def _needed_policies(scheme: str) -> tuple[str, ...]:
     """Coordinator kinds whose actions a scheme uses."""
     return {"EE": ("edge",), "EEC": ("edge", "cloud")}.get(scheme, ())
@@ -156,11 +170,7 @@ def evaluate_scheme(
     """
     _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
-    overrides = dict(config_overrides)
-    if scheme in COMPARATORS:
-        overrides.update(scheme="E", **COMPARATORS[scheme])
-    else:
-        overrides["scheme"] = scheme
+    overrides = scheme_overrides(scheme, config_overrides)
     env = mivecc_v0.parallel_env(
         rows=rows, cols=cols, density=density, max_steps=int(steps), **overrides
     )
@@ -272,11 +282,7 @@ def evaluate_batch(
     for seed in seeds:
         _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
-    overrides = dict(config_overrides)
-    if scheme in COMPARATORS:
-        overrides.update(scheme="E", **COMPARATORS[scheme])
-    else:
-        overrides["scheme"] = scheme
+    overrides = scheme_overrides(scheme, config_overrides)
     pairs = [(float(d), int(s)) for d in dens for s in seeds]
     needed_scheme = overrides["scheme"]
     needed = _needed_policies(needed_scheme)
