@@ -13,6 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import comparison
 import paper_table
 import rules_study
+import trace_collisions
 
 
 def test_rules_study_writes_its_table(tmp_path: Path) -> None:
@@ -63,3 +64,14 @@ def test_comparison_runs_reuses_and_tabulates(tmp_path: Path) -> None:
     with open(tmp_path / "b" / "comparison.csv") as fh:
         assert [r["avg_travel_velocity_mps"] for r in csv.DictReader(fh)] == [
             r["avg_travel_velocity_mps"] for r in rows]
+
+
+
+def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixture[str]) -> None:
+    # docs/results/released_study.md, "Traced collisions": E, released, 2100, seed 1, step 1184.
+    records = trace_collisions.main(["--density", "2100", "--seed", "1", "--steps", "1185",
+                                     "--history", "2"])
+    out = capsys.readouterr().out
+    assert [r["step"] for r in records] == [1184]
+    assert sorted(records[0]["vehicles"]) == [619, 696] and 7 in records[0]["areas"]
+    assert "v619 lane 2 s= 292.24" in out and "collision events: 1" in out
