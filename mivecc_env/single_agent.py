@@ -39,7 +39,8 @@ class MiVeCCEdgeEnv(gymnasium.Env):
 
     Args:
         intersection: index ``row * cols + col`` of the controlled intersection.
-        render_mode: ``None`` or ``"rgb_array"``.
+        render_mode: ``None``, ``"rgb_array"`` or ``"human"`` (a matplotlib window, drawn
+            at every reset and step; headless-safe, as for :class:`MiVeCCParallelEnv`).
         **overrides: config fields as for :class:`MiVeCCParallelEnv` (``scheme`` defaults to
             ``"EE"`` here).
 
@@ -47,7 +48,7 @@ class MiVeCCEdgeEnv(gymnasium.Env):
         ConfigError: a bad config value or keyword, or ``intersection`` outside the grid.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
 
     def __init__(
         self, intersection: int = 0, render_mode: str | None = None, **overrides: Any
@@ -95,7 +96,7 @@ class MiVeCCEdgeEnv(gymnasium.Env):
         )
 
     def render(self) -> np.ndarray | None:
-        """An RGB frame (``render_mode="rgb_array"``), else ``None``."""
+        """An RGB frame (``render_mode="rgb_array"``), else ``None`` (``"human"`` draws)."""
         return self._env.render()
 
     def close(self) -> None:

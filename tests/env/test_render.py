@@ -129,3 +129,23 @@ def test_heatmaps_script_writes_pngs(tmp_path) -> None:
                          str(tmp_path)])
     assert len(paths) == 6 and all(p.stat().st_size > 1000 for p in paths)
     assert {p.name for p in paths} >= {"signalized_frame.png", "unsignalized_E_density.png"}
+
+
+def test_gymnasium_edge_view_renders_human_headless() -> None:
+    """``gymnasium.make("mivecc/MiVeCCEdge-v0", render_mode="human")`` draws without raising."""
+    import gymnasium
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import mivecc_env  # noqa: F401  (registers the id)
+
+    env = gymnasium.make("mivecc/MiVeCCEdge-v0", rows=1, cols=1, density=900, max_steps=20,
+                         render_mode="human")
+    assert "human" in env.metadata["render_modes"]
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(env.action_space.sample() * 0.0)
+    assert env.render() is None
+    viewer = env.unwrapped.parallel_env._viewer
+    assert viewer is not None and viewer.frames_shown >= 6  # reset + 5 steps (+ render)
+    env.close()
