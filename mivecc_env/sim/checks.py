@@ -17,29 +17,26 @@ __all__ = ["check_accel", "check_positive_int", "check_seed"]
 _SEED_RULE = "None, an integer >= 0, or a sequence of integers >= 0"
 
 
-def check_positive_int(name: str, value: Any) -> int:
-    """``value`` as a Python int >= 1 (numpy integers accepted); ``ValueError`` otherwise."""
+def _integer_at_least(name: str, value: Any, minimum: int, rule: str) -> int:
+    """``value`` as a Python int >= ``minimum`` (numpy integers accepted, bools not)."""
     if isinstance(value, bool | np.bool_):
-        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+        raise ValueError(f"{name}: must be {rule}, got {value!r}")
     try:
         out = operator.index(value)
     except TypeError:
-        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}") from None
-    if out < 1:
-        raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+        raise ValueError(f"{name}: must be {rule}, got {value!r}") from None
+    if out < minimum:
+        raise ValueError(f"{name}: must be {rule}, got {value!r}")
     return out
+
+
+def check_positive_int(name: str, value: Any) -> int:
+    """``value`` as a Python int >= 1 (numpy integers accepted); ``ValueError`` otherwise."""
+    return _integer_at_least(name, value, 1, "an integer >= 1")
 
 
 def _seed_int(name: str, value: Any) -> int:
-    if isinstance(value, bool | np.bool_):
-        raise ValueError(f"{name}: must be {_SEED_RULE}, got {value!r}")
-    try:
-        out = operator.index(value)
-    except TypeError:
-        raise ValueError(f"{name}: must be {_SEED_RULE}, got {value!r}") from None
-    if out < 0:
-        raise ValueError(f"{name}: must be {_SEED_RULE}, got {value!r}")
-    return out
+    return _integer_at_least(name, value, 0, _SEED_RULE)
 
 
 def check_seed(
