@@ -319,7 +319,8 @@ class BatchedMiVeCCEnv:
         self._v = v
         self._edge = self._cloud = None
         if "edge" in self.observe:
-            key = edge_selection.edge_priority(sim.safety.sv, view.env, sim.selection_rngs, c)
+            key = edge_selection.edge_priority(sim.safety.sv, view.env, sim.selection_rngs, c,
+                                                sim.step_count)
             self._edge = edge_graphs(sim.network, view, key, v, a, b, c, area)
         if "cloud" in self.observe:
             di = density_indicator(view, c.di_n)

@@ -117,7 +117,7 @@ class Simulator:
         """Empty network, fresh arrival streams, time 0."""
         seeds = self._seed_sequences(seed)
         self.arrivals.reset(seeds)
-        self.selection_rngs = edge_selection.make_generators(seeds)  # edge_selection="random"
+        self.selection_rngs = edge_selection.SelectionStreams(seeds)  # edge_selection="random"
         shape = (self.batch_size, self._initial_capacity)
         self.active = np.zeros(shape, dtype=bool)
         self.lane = np.zeros(shape, dtype=np.int64)
@@ -173,9 +173,13 @@ class Simulator:
         if len(seeds) != envs.size:
             raise ValueError(f"seeds: need one seed per reset environment ({envs.size}), "
                              f"got {len(seeds)}")
-        self.arrivals.reset_at(envs, [np.random.SeedSequence(int(x)).spawn(1)[0] for x in seeds])
+        seqs = [np.random.SeedSequence(int(x)).spawn(1)[0] for x in seeds]
+        self.arrivals.reset_at(envs, seqs)
+        self.selection_rngs.reset_at(envs.tolist(), seqs)
         self.active[envs] = False
         self.vid[envs] = -1
+        self._sv_last[envs] = 0.0  # released-model records (stale_action)
+        self._closer_last[envs] = 0.0
         self.start_step[envs] = self.step_count
         for name in ("next_vid", "exited", "collided", "collision_events", "sum_travel_velocity",
                      "sum_travel_velocity_no_wait", "sum_trip_time", "sum_wait_time",
@@ -526,8 +530,12 @@ class Simulator:
         events.entered = n_new
 
     def _grow(self, needed: int) -> None:
-        new_cap = max(2 * self.capacity, needed + 16)
-        pad = new_cap - self.capacity
+        old_cap = self.capacity
+        new_cap = max(2 * old_cap, needed + 16)
+        pad = new_cap - old_cap
+        if self._prev_s is not None:  # flat slots of the last move, in the new layout
+            slots, s_old = self._prev_s
+            self._prev_s = ((slots // old_cap) * new_cap + slots % old_cap, s_old)
         for name, fill in (("active", False), ("lane", 0), ("s", 0.0), ("v", 0.0), ("a", 0.0),
                            ("t_arrive", 0.0), ("t_enter", 0.0), ("vid", -1),
                            ("_sv_last", 0.0), ("_closer_last", 0.0)):

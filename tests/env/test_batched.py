@@ -224,3 +224,12 @@ def test_reset_at_refused_where_the_controller_has_one_clock() -> None:
     env.reset(seed=0)
     with pytest.raises(NotImplementedError, match="reset_at"):
         env.reset_at([0])
+
+
+def test_released_model_partial_reset_matches_single_runs() -> None:
+    # The released model's per-environment state: random edge selection (drawn once per step,
+    # not again when reset_at rebuilds the observations), stale-action records, entry lag.
+    kw = {"rows": 1, "cols": 2, "scheme": "EEC", "max_steps": 1000, "model": "released"}
+    seen = run_against_singles(kw, [1, 2, 3], [2100.0] * 3, steps=200,
+                               resets={40: [1], 70: [0, 2], 90: [1], 150: [2]})
+    assert seen > 1000

@@ -237,14 +237,56 @@ def test_random_edge_selection_is_seeded_and_batch_independent() -> None:
     seeds = [np.random.SeedSequence(5).spawn(1)[0], np.random.SeedSequence(6).spawn(1)[0]]
     cfg = REL_1X1
     env = np.array([0, 0, 0, 1, 1])
-    k1 = edge_selection.edge_priority(np.zeros(5), env, edge_selection.make_generators(seeds), cfg)
+    streams = edge_selection.SelectionStreams(seeds)
+    k1 = edge_selection.edge_priority(np.zeros(5), env, streams, cfg, 0)
     k2 = edge_selection.edge_priority(np.zeros(3), env[:3],
-                                      edge_selection.make_generators(seeds[:1]), cfg)
+                                      edge_selection.SelectionStreams(seeds[:1]), cfg, 0)
     np.testing.assert_array_equal(k1[:3], k2)
     assert ((k1 >= cfg.sv_min) & (k1 < cfg.sv_max)).all() and np.unique(k1).size == 5
+    # the same step observed again draws nothing new; the next step draws new keys
+    np.testing.assert_array_equal(edge_selection.edge_priority(np.zeros(5), env, streams, cfg, 0),
+                                  k1)
+    k3 = edge_selection.edge_priority(np.zeros(5), env, streams, cfg, 1)
+    assert not np.isin(k3, k1).any()
+    # a restarted environment draws its fresh generator's first numbers again
+    streams.reset_at([1], seeds[1:])
+    k4 = edge_selection.edge_priority(np.zeros(5), env, streams, cfg, 1)
+    np.testing.assert_array_equal(k4[:3], k3[:3])
+    np.testing.assert_array_equal(k4[3:], k1[3:])
     low = cfg.replace(edge_selection="lowest_sv")
     sv = np.arange(5.0)
-    assert edge_selection.edge_priority(sv, env, [], low) is sv
+    assert edge_selection.edge_priority(sv, env, streams, low, 0) is sv
+
+
+def test_released_batch_with_growth_and_partial_resets_matches_single_runs() -> None:
+    """Environment b of a released-model batch under partial resets and slot-array growth is
+    bit-identical to a B = 1 simulator with the same seeds (the per-slot records of the stale
+    action and the section-entry lag's positions before the move included)."""
+    cfg = MiVeCCConfig(rows=1, cols=2, density_vplh=2400.0, model="released", scheme="E")
+    seeds = [7, 8, 9]
+    batch = Simulator(cfg, batch_size=3, seed=seeds, capacity=8)
+    singles = [Simulator(cfg, seed=[s], capacity=8) for s in seeds]
+    resets = {60: ([1], [21]), 130: ([0, 2], [22, 23]), 170: ([1], [24])}
+    grown = {batch.capacity}
+    for t in range(260):
+        batch.step()
+        for single in singles:
+            single.step()
+        grown.add(batch.capacity)
+        if t in resets:
+            envs, new = resets[t]
+            batch.reset_at(envs, new)
+            for b, s in zip(envs, new, strict=True):
+                singles[b].reset([s])
+        for b, single in enumerate(singles):
+            got, ref = batch.vehicle_table(b), single.vehicle_table(0)
+            for k in got:
+                assert got[k].tobytes() == ref[k].tobytes(), f"step {t} env {b}: {k}"
+            for k in ("exited", "collided", "collision_events", "sum_travel_velocity"):
+                assert getattr(batch, k)[b] == getattr(single, k)[0], f"step {t} env {b}: {k}"
+            sv_b = batch.safety.sv[batch.view.env == b]
+            assert sv_b.tobytes() == single.safety.sv.tobytes(), f"step {t} env {b}: sv"
+    assert len(grown) > 1  # the slot arrays grew during the run
 
 
 def test_released_run_keeps_the_accounting() -> None:
@@ -309,3 +351,28 @@ def test_released_same_lane_rule_leaves_the_first_vehicle_to_the_header_rule() -
         place(sim, [(EAST, 50.0, 10.0)])
         sim.step()
         assert sim.a[0, 0] == pytest.approx(expected)
+
+
+def test_slot_growth_keeps_the_positions_before_the_move() -> None:
+    """The section-entry lag compares each vehicle's section before and after the last move;
+    growing the slot arrays in between (as a crowded entry does) must not change what it sees.
+    Environment 1 of the batch has its flat slot numbers shifted by the growth."""
+    cfg = MiVeCCConfig(rows=1, cols=2, density_vplh=2400.0, model="released", scheme="E")
+    a = Simulator(cfg, batch_size=2, seed=[3, 4], capacity=64)
+    b = Simulator(cfg, batch_size=2, seed=[3, 4], capacity=64)
+    for _ in range(400):
+        a.step()
+        b.step()
+        slots, s_old = a._prev_s
+        lane = a.lane.ravel()[slots]
+        k_old = sections.section_of(a.network, cfg, lane, s_old)[0]
+        k_new = sections.section_of(a.network, cfg, lane, a.s.ravel()[slots])[0]
+        if ((slots // a.capacity == 1) & (k_old != k_new) & a.active.ravel()[slots]).any():
+            break  # a vehicle of env 1 changed section in this move
+    else:
+        pytest.fail("no section change in env 1")
+    b._grow(2 * b.capacity)
+    b._refresh_view()
+    a._refresh_view()
+    np.testing.assert_array_equal(a._seen, b._seen)
+    assert a.safety.sv.tobytes() == b.safety.sv.tobytes()
