@@ -12,11 +12,18 @@ with the episode (:meth:`NearMissStats.reset_at` for some environments). Definit
   :func:`mivecc_env.sim.safety.time_to_collision`), the time until the two points meet at
   constant speeds (for a projected vehicle: until both are equally far from their conflict
   point). An own-lane pair touches (2 m) ``2 m / closing`` earlier. Vehicle-steps without a
-  closing vehicle ahead are not samples. ``min_ttc_s`` is the episode minimum; ``ttc_p1_s`` the
-  1st percentile of all samples, read from a histogram with fixed bins of :data:`TTC_BIN_S` =
-  0.01 s on ``[0, TTC_HIST_MAX_S = 20 s)`` plus one overflow bin: the upper edge of the first
-  bin at which the cumulative count reaches 1 % of the samples (exact to 0.01 s, rounded up),
-  ``inf`` when that is the overflow bin.
+  closing vehicle ahead are not samples. A point level with the ego (the view orders points
+  closer than its 0.1 mm resolution by input, so the "point ahead" can sit up to 0.1 mm behind)
+  counts at distance 0: every TTC is ``>= 0``. Under ``control="signalized"`` the vehicles
+  waiting at a red light are projected too (at 0 m/s): a vehicle driving on green past the
+  projection of a waiting crossing vehicle gives TTC samples down to 0 although the two never
+  meet, so there ``min_ttc_s`` / ``ttc_p1_s`` measure projected spacing, not danger; compare
+  signalized and unsignalized safety with ``min_pet_s`` and ``min_distance_m``.
+  ``min_ttc_s`` is the episode minimum; ``ttc_p1_s`` the 1st percentile of all samples, read
+  from a histogram with fixed bins of :data:`TTC_BIN_S` = 0.01 s on ``[0, TTC_HIST_MAX_S =
+  20 s)`` plus one overflow bin: the upper edge of the first bin at which the cumulative count
+  reaches 1 % of the samples (exact to 0.01 s, rounded up), ``inf`` when that is the overflow
+  bin.
 * **Post-encroachment time (PET)** at the conflict points. A vehicle *reaches* a conflict point
   when its centre is ``vehicle_length / 2`` before it (its front at the point) and *leaves* it
   when its centre is ``vehicle_length / 2`` past it (its rear clear); both times are
@@ -243,8 +250,11 @@ class NearMissStats:
         i = ((closing > 0.0) & (f >= 0)).nonzero()[0]
         if i.size == 0:
             return
-        # time_to_collision(d_front, closing) without its guards: closing > 0 here
-        ttc = view.d_front[i] / closing[i]
+        # time_to_collision(d_front, closing) without its guards: closing > 0 here. A point
+        # level with the ego (the view orders points within 0.1 mm by input, so it can be up to
+        # 0.1 mm behind) is at distance 0: TTC is never negative.
+        d = view.d_front[i]
+        ttc = np.where(d > 0.0, d, 0.0) / closing[i]
         env = view.env[i]
         np.minimum.at(self.min_ttc_s, env, ttc)
         bins = np.fmin(ttc * (1.0 / TTC_BIN_S), _N_TTC_BINS).astype(np.int64)  # inf: overflow

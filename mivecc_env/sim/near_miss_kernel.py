@@ -27,7 +27,8 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
         if f >= 0:
             closing = v[i] - v[point_vehicle[f]]
             if closing > 0.0:
-                ttc = d_front[i] / closing
+                gap = d_front[i] if d_front[i] > 0.0 else 0.0  # level: 0, never < 0
+                ttc = gap / closing
                 e = env[i]
                 if ttc < min_ttc[e]:
                     min_ttc[e] = ttc

@@ -71,6 +71,21 @@ def test_no_ttc_sample_without_closing() -> None:
     assert stats.summary(0)["ttc_p1_s"] == np.inf
 
 
+def test_ttc_is_never_negative_with_a_coincident_projection() -> None:
+    # A crossing vehicle waiting at 0 m/s (as at a red light) exactly as far from its conflict
+    # point as the ego (39 m) minus 0.02 mm: the view sorts points within 0.1 mm in input order
+    # (own point first), so the projection, 0.02 mm *behind* the ego, is its nearest point
+    # ahead at d_front = -2e-5 m. The two are level on the virtual lane: TTC 0, not -2e-6 s.
+    view = build_view(GridNetwork.from_config(ONE), ONE.projection_window_m,
+                      ONE.projection_clear_m, np.ones((1, 2), dtype=bool),
+                      np.array([[EAST, NORTH]]), np.array([[116.00005, 106.00003]]))
+    assert view.front_point[0] >= 0 and -1e-4 < view.d_front[0] < 0.0  # the constructed case
+    stats = drive(ONE, [(EAST, 116.00005, 10.0), (NORTH, 106.00003, 0.0)], steps=1)
+    assert stats.min_ttc_s[0] == 0.0 and not np.signbit(stats.min_ttc_s[0])
+    assert stats.ttc_hist[0, 0] == 1 and stats.ttc_hist[0].sum() == 1
+    assert f"{stats.summary(0)['min_ttc_s']:.3f}" == "0.000"
+
+
 def test_ttc_percentile_of_a_histogram() -> None:
     hist = np.zeros((2, 2001), dtype=np.int64)
     hist[0, 5] = hist[0, 7] = 1
