@@ -16,95 +16,145 @@ import numpy as np
 
 from mivecc_env.sim._numba import HAVE_NUMBA, njit
 
-__all__ = ["HAVE_NUMBA", "fill_references"]
+__all__ = ["HAVE_NUMBA", "build", "select_per_group"]
 
 
 @njit
-def _fill(cells, head_cell, k, own_point, s_d, lo, hi, point_pos, point_vehicle, va,
-          centre, radius, use_area, inv_scale):  # pragma: no cover - compiled
-    n_dec = own_point.shape[0]
-    n_veh = va.shape[0] - 1
-    b_idx = np.empty(k, np.int64)
-    b_dist = np.empty(k, np.float64)
-    b_rel = np.empty(k, np.float64)
-    a_idx = np.empty(k, np.int64)
-    a_dist = np.empty(k, np.float64)
-    a_rel = np.empty(k, np.float64)
-    for i in range(n_dec):
-        p = own_point[i]
-        s = s_d[i]
-        # valid candidates behind (nearest first) and ahead (nearest first)
-        nb = 0
-        for q in range(p - 1, lo[i] - 1, -1):
-            pos = point_pos[q]
-            if use_area and not (abs(pos - centre[i]) <= radius):
-                continue
-            rel = pos - s
-            b_idx[nb] = q
-            b_rel[nb] = rel
-            b_dist[nb] = abs(rel)
-            nb += 1
-        na = 0
-        for q in range(p + 1, hi[i]):
-            pos = point_pos[q]
-            if use_area and not (abs(pos - centre[i]) <= radius):
-                continue
-            rel = pos - s
-            a_idx[na] = q
-            a_rel[na] = rel
-            a_dist[na] = abs(rel)
-            na += 1
-        ib = 0
-        ia = 0
-        row = 1
-        while row < k and (ib < nb or ia < na):
-            if ib < nb and (ia >= na or b_dist[ib] <= a_dist[ia]):
-                # a run of equal distances behind: lower point index (farther in the list) first
-                end = ib
-                while end + 1 < nb and b_dist[end + 1] == b_dist[ib]:
-                    end += 1
-                j = end
-                while j >= ib and row < k:
-                    _write(cells, head_cell[i] + row * k, b_rel[j], point_vehicle[b_idx[j]],
-                           va, inv_scale)
-                    row += 1
-                    j -= 1
-                ib = end + 1
-            else:
-                _write(cells, head_cell[i] + row * k, a_rel[ia], point_vehicle[a_idx[ia]],
-                       va, inv_scale)
-                row += 1
-                ia += 1
-    return n_veh
+def _valid(pos, use_area, centre, radius):  # pragma: no cover - compiled
+    return (not use_area) or abs(pos - centre) <= radius
+
+
+@njit
+def _next_behind(q, lo, point_pos, use_area, centre, radius):  # pragma: no cover - compiled
+    """Largest valid point index <= q (``lo - 1`` if none in ``[lo, q]``)."""
+    while q >= lo and not _valid(point_pos[q], use_area, centre, radius):
+        q -= 1
+    return q
+
+
+@njit
+def _next_ahead(q, hi, point_pos, use_area, centre, radius):  # pragma: no cover - compiled
+    """Smallest valid point index >= q (``hi`` if none in ``[q, hi)``)."""
+    while q < hi and not _valid(point_pos[q], use_area, centre, radius):
+        q += 1
+    return q
+
+
+@njit
+def _channel(x):  # pragma: no cover - compiled
+    return np.float32(min(max(x, -1.0), 1.0))
+
+
+@njit
+def _channels(velocity, accel, v_lo, v_mul, a_mul):  # pragma: no cover - compiled
+    """(n, 2) float32 velocity and acceleration channels of every view vehicle."""
+    va = np.empty((velocity.shape[0], 2), np.float32)
+    for i in range(velocity.shape[0]):
+        va[i, 0] = _channel((velocity[i] - v_lo) * v_mul - 1.0)
+        va[i, 1] = _channel(accel[i] * a_mul)
+    return va
 
 
 @njit
 def _write(cells, cell, rel, vehicle, va, inv_scale):  # pragma: no cover - compiled
-    x = rel * inv_scale
-    x = min(max(x, -1.0), 1.0)
-    cells[cell, 0] = np.float32(x)
+    cells[cell, 0] = _channel(rel * inv_scale)
     cells[cell, 1] = va[vehicle, 0]
     cells[cell, 2] = va[vehicle, 1]
 
 
-def fill_references(
-    cells: np.ndarray, head_cell: np.ndarray, k: int, own_point: np.ndarray, s_d: np.ndarray,
-    lo: np.ndarray, hi: np.ndarray, point_pos: np.ndarray, point_vehicle: np.ndarray,
-    va: np.ndarray, centre: np.ndarray | None, radius: float, inv_scale: float,
+@njit
+def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, view_lane,
+           view_vehicle, own_point, run_start, run_end, point_pos, point_vehicle, velocity,
+           accel, v_lo, v_mul, a_mul, lane_cp_s, lane_length, use_area, centre, radius,
+           inv_scale):  # pragma: no cover - compiled
+    va = _channels(velocity, accel, v_lo, v_mul, a_mul)
+    for i in range(decision.shape[0]):
+        d = decision[i]
+        s = view_s[d]
+        lane = view_lane[d]
+        c = centre[i] if use_area else 0.0
+        # row 0: distance to the next conflict point ahead (the lane end past the last one)
+        stop = np.inf
+        for cp in lane_cp_s[lane]:
+            if cp >= s and cp < stop:
+                stop = cp
+        if not np.isfinite(stop):
+            stop = lane_length[lane]
+        head = node[i] * (k * k) + column[i]
+        cells[head, 0] = _channel((s - stop) * inv_scale)
+        cells[head, 1] = va[d, 0]
+        cells[head, 2] = va[d, 1]
+        flat = node[i] * k + column[i]
+        mask[flat] = 1.0
+        slot[flat] = view_vehicle[d]
+        view_index[flat] = d
+        # rows 1..K-1: merge the valid points behind and ahead, nearest first
+        p = own_point[d]
+        lo = max(run_start[p], p - (k - 1))
+        hi = min(run_end[p], p + k)  # exclusive
+        qb = _next_behind(p - 1, lo, point_pos, use_area, c, radius)
+        qa = _next_ahead(p + 1, hi, point_pos, use_area, c, radius)
+        row = 1
+        while row < k and (qb >= lo or qa < hi):
+            take_behind = False
+            if qb >= lo:
+                db = abs(point_pos[qb] - s)
+                take_behind = qa >= hi or db <= abs(point_pos[qa] - s)
+            if take_behind:
+                # a run of equal distances behind goes out in increasing point index
+                end = qb
+                nxt = _next_behind(qb - 1, lo, point_pos, use_area, c, radius)
+                while nxt >= lo and abs(point_pos[nxt] - s) == db:
+                    end = nxt
+                    nxt = _next_behind(nxt - 1, lo, point_pos, use_area, c, radius)
+                q = end
+                while q <= qb and row < k:
+                    if _valid(point_pos[q], use_area, c, radius):
+                        _write(cells, head + row * k, point_pos[q] - s, point_vehicle[q], va,
+                               inv_scale)
+                        row += 1
+                    q += 1
+                qb = nxt
+            else:
+                _write(cells, head + row * k, point_pos[qa] - s, point_vehicle[qa], va,
+                       inv_scale)
+                row += 1
+                qa = _next_ahead(qa + 1, hi, point_pos, use_area, c, radius)
+
+
+def build(
+    cells: np.ndarray, mask: np.ndarray, slot: np.ndarray, view_index: np.ndarray, k: int,
+    decision: np.ndarray, node: np.ndarray, column: np.ndarray, view, velocity: np.ndarray,
+    accel: np.ndarray, v_lo: float, v_mul: float, a_mul: float, lane_cp_s: np.ndarray,
+    lane_length: np.ndarray, centre: np.ndarray | None, radius: float, inv_scale: float,
 ) -> None:
-    """Write rows ``1..K-1`` of every decision's column into ``cells`` ((N*K*K, 3) float32).
+    """Fill every decision's column of the state graphs (all rows) and its mask entries.
 
     Args:
-        head_cell: (D,) cell index of each decision's row 0.
-        own_point / s_d / lo / hi: (D,) own point, position [m] and candidate index range
-            ``[lo, hi)`` of each decision.
-        va: (n+1, 2) float32 velocity/acceleration channels per view vehicle (last row 0).
-        centre / radius: area filter (``None``: no filter).
+        cells: (N*K*K, 3) float32 zeros, cell ``(node, row, column)`` at
+            ``(node * K + row) * K + column``.
+        mask / slot / view_index: (N*K,) flat outputs (0 / -1 / -1 where no decision).
+        decision / node / column: (D,) the selected view vehicles, their node and column.
+        view: the :class:`~mivecc_env.sim.virtual_lane.VirtualLaneView`.
+        velocity / accel: (n,) per view vehicle [m/s], [m/s^2].
+        v_lo / v_mul / a_mul: velocity channel ``(v - v_lo) * v_mul - 1``, accel ``a * a_mul``.
+        lane_cp_s / lane_length: the network's conflict points per lane (inf padding) and
+            lane lengths [m].
+        centre / radius: area filter of the references (``None``: no filter) [m].
+        inv_scale: 1 / position scale [1/m].
     """
     use_area = centre is not None
     c = centre if use_area else np.zeros(0)
-    _fill(cells, head_cell, k, own_point, s_d, lo, hi, point_pos, point_vehicle, va, c,
-          float(radius), use_area, float(inv_scale))
+    _build(cells, mask, slot, view_index, k, decision, node, column, view.s, view.lane,
+           view.vehicle, view.own_point, view.point_run_start, view.point_run_end,
+           view.point_pos, view.point_vehicle, velocity, accel, float(v_lo), float(v_mul),
+           float(a_mul), lane_cp_s, lane_length, use_area, c, float(radius), float(inv_scale))
+
+
+@njit
+def _less(a, b):  # pragma: no cover - compiled
+    """``a`` sorts before ``b`` (NaN last, like numpy's sorts; equal keys: neither)."""
+    return a < b or (b != b and a == a)
 
 
 @njit
@@ -114,7 +164,9 @@ def _select(group, key, n_groups, k):  # pragma: no cover - compiled
     for i in range(n):
         if group[i] >= 0:
             count[group[i] + 1] += 1
+    n_out = 0
     for g in range(n_groups):
+        n_out += min(k, count[g + 1])
         count[g + 1] += count[g]
     start = count.copy()
     members = np.empty(count[n_groups], np.int64)
@@ -123,22 +175,37 @@ def _select(group, key, n_groups, k):  # pragma: no cover - compiled
         if g >= 0:
             members[start[g]] = i
             start[g] += 1
-    out_idx = np.empty(count[n_groups], np.int64)
-    out_group = np.empty(count[n_groups], np.int64)
-    out_col = np.empty(count[n_groups], np.int64)
-    m = 0
+    out_idx = np.empty(n_out, np.int64)
+    out_group = np.empty(n_out, np.int64)
+    out_col = np.empty(n_out, np.int64)
+    buf_key = np.empty(max(k, 1), np.float64)
+    buf_idx = np.empty(max(k, 1), np.int64)
+    m_out = 0
     for g in range(n_groups):
-        lo, hi = count[g], count[g + 1]
-        if hi == lo:
-            continue
-        idx = members[lo:hi]
-        order = np.argsort(key[idx], kind="mergesort")  # stable: ties keep index order
-        for c in range(min(k, hi - lo)):
-            out_idx[m] = idx[order[c]]
-            out_group[m] = g
-            out_col[m] = c
-            m += 1
-    return out_idx[:m], out_group[:m], out_col[:m]
+        # the k lowest keys of the group, kept sorted by insertion; members come in index
+        # order and an equal key never moves ahead, so ties keep index order (a stable sort)
+        m = 0
+        for t in range(count[g], count[g + 1]):
+            i = members[t]
+            x = key[i]
+            if m == k:
+                if not _less(x, buf_key[k - 1]):
+                    continue
+            else:
+                m += 1
+            pos = m - 1
+            while pos > 0 and _less(x, buf_key[pos - 1]):
+                buf_key[pos] = buf_key[pos - 1]
+                buf_idx[pos] = buf_idx[pos - 1]
+                pos -= 1
+            buf_key[pos] = x
+            buf_idx[pos] = i
+        for c in range(m):
+            out_idx[m_out] = buf_idx[c]
+            out_group[m_out] = g
+            out_col[m_out] = c
+            m_out += 1
+    return out_idx, out_group, out_col
 
 
 def select_per_group(
@@ -156,3 +223,52 @@ def select_per_group(
         (index, group, column) of each selected element, by group then column.
     """
     return _select(group, key, n_groups, k)
+
+
+@njit
+def _area_centres(lane, area, lane_intersections, lane_centres_s):  # pragma: no cover
+    out = np.empty(lane.shape[0], np.float64)
+    for i in range(lane.shape[0]):
+        which = 0  # argmax of an all-False row is 0
+        for j in range(lane_intersections.shape[1]):
+            if lane_intersections[lane[i], j] == area[i]:
+                which = j
+                break
+        out[i] = lane_centres_s[lane[i], which]
+    return out
+
+
+def area_centres(
+    lane: np.ndarray, area: np.ndarray, lane_intersections: np.ndarray,
+    lane_centres_s: np.ndarray,
+) -> np.ndarray:
+    """(D,) position [m] on ``lane`` of the centre of intersection ``area`` (the first of the
+    lane's intersections equal to it; the lane's first centre if none is)."""
+    return _area_centres(lane, area, lane_intersections, lane_centres_s)
+
+
+@njit
+def _density_indicator(own_point, run_start, run_end, point_pos, n):  # pragma: no cover
+    out = np.empty(own_point.shape[0], np.float64)
+    for i in range(own_point.shape[0]):
+        p = own_point[i]
+        start, end = run_start[p], run_end[p]
+        count = end - start
+        if count < 2:
+            out[i] = 0.0
+            continue
+        ahead = min(p + n, end - 1)
+        behind = max(p - n, start)
+        local = abs(point_pos[ahead] - point_pos[behind]) / max(ahead - behind, 1)
+        mean = abs(point_pos[end - 1] - point_pos[start]) / max(count - 1, 1)
+        out[i] = abs(local - mean)
+    return out
+
+
+def density_indicator(
+    own_point: np.ndarray, run_start: np.ndarray, run_end: np.ndarray, point_pos: np.ndarray,
+    n: int,
+) -> np.ndarray:
+    """Compiled :func:`mivecc_env.sim.virtual_lane.density_indicator` (same arguments taken
+    from the view; identical results)."""
+    return _density_indicator(own_point, run_start, run_end, point_pos, int(n))

@@ -208,14 +208,24 @@ def build_graphs(
 
     v_lo = config.velocity_floor_mps
     inv_scale = 1.0 / position_scale_m
+    v_mul = 2.0 / (config.v_max_mps - v_lo)
+    a_mul = 1.0 / accel_scale_mps2(config)
+    if use_kernel is None:
+        use_kernel = graph_kernel.HAVE_NUMBA
+    if use_kernel:
+        graph_kernel.build(obs.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
+                           view_index.reshape(-1), k, decision, node, column, view, velocity,
+                           accel, v_lo, v_mul, a_mul, network.lane_cp_s, network.lane_length,
+                           area_centre_s, area_radius_m, inv_scale)
+        return finish()
 
     s_d = view.s[decision]
     to_stop = s_d - network.next_stop_s(view.lane[decision], s_d)
     n_veh = velocity.size
     # Channels velocity and acceleration of every view vehicle, plus a zero row for padding.
     va = np.zeros((n_veh + 1, 2), dtype=np.float32)
-    va[:n_veh, 0] = _unit_clip((velocity - v_lo) * (2.0 / (config.v_max_mps - v_lo)) - 1.0)
-    va[:n_veh, 1] = _unit_clip(accel * (1.0 / accel_scale_mps2(config)))
+    va[:n_veh, 0] = _unit_clip((velocity - v_lo) * v_mul - 1.0)
+    va[:n_veh, 1] = _unit_clip(accel * a_mul)
     # obs viewed as (node * K * K, 3): cell (node, row, column) is row (node*K + row)*K + column
     cells = obs.reshape(-1, 3)
     head_cell = node * (k * k) + column
@@ -228,13 +238,6 @@ def build_graphs(
     p = view.own_point[decision]
     lo = np.maximum(view.point_run_start[p], p - (k - 1))
     hi = np.minimum(view.point_run_end[p], p + k)  # exclusive
-    if use_kernel is None:
-        use_kernel = graph_kernel.HAVE_NUMBA
-    if use_kernel:
-        graph_kernel.fill_references(cells, head_cell, k, p, s_d, lo, hi, view.point_pos,
-                                     view.point_vehicle, va, area_centre_s, area_radius_m,
-                                     inv_scale)
-        return _finish_masks(finish(), node, column, view, decision)
     width = int((hi - lo).max())
     cand = lo[:, None] + np.arange(width)
     valid = (cand < hi[:, None]) & (cand != p[:, None])
@@ -280,8 +283,12 @@ def edge_graphs(
     decision, node, column = select_edge_decisions(network, view, sv, k, config, area)
     area = node % network.n_intersections
     lane = view.lane[decision]
-    which = np.argmax(network.lane_intersections[lane] == area[:, None], axis=1)
-    centre = network.lane_centres_s[lane, which]
+    if graph_kernel.HAVE_NUMBA:
+        centre = graph_kernel.area_centres(lane, area, network.lane_intersections,
+                                           network.lane_centres_s)
+    else:
+        which = np.argmax(network.lane_intersections[lane] == area[:, None], axis=1)
+        centre = network.lane_centres_s[lane, which]
     return build_graphs(
         network, view, velocity, accel, decision, node, column, network.n_intersections,
         batch, k, 2.0 * config.control_radius_m, config, centre, config.control_radius_m,

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from mivecc_env.sim import graph_kernel
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.view_kernel import build_view_fast
 
@@ -242,8 +243,17 @@ def density_indicator(view: VirtualLaneView, n: int) -> FloatArray:
     ``p_l,i`` are the points ``n`` places ahead of and behind vehicle ``i`` on its virtual lane
     (fewer near the lane ends: ``spacings_i`` counts the spacings actually spanned, ``2n`` in
     the interior) and ``p_f``, ``p_l``, ``N_L`` the first and last points and the number of
-    points of the lane. ``DI = 0`` on a lane with fewer than two points.
+    points of the lane. ``DI = 0`` on a lane with fewer than two points. Compiled
+    (:func:`mivecc_env.sim.graph_kernel.density_indicator`, identical) when numba is available.
     """
+    if graph_kernel.HAVE_NUMBA:
+        return graph_kernel.density_indicator(view.own_point, view.point_run_start,
+                                              view.point_run_end, view.point_pos, n)
+    return density_indicator_reference(view, n)
+
+
+def density_indicator_reference(view: VirtualLaneView, n: int) -> FloatArray:
+    """The numpy path of :func:`density_indicator`."""
     p = view.own_point
     start, end = view.point_run_start[p], view.point_run_end[p]
     ahead = np.minimum(p + n, end - 1)

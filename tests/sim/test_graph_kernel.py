@@ -11,7 +11,7 @@ from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import graph_kernel
 from mivecc_env.sim.core import Simulator
 from mivecc_env.sim.state_graph import build_graphs, select_cloud_decisions, select_edge_decisions
-from mivecc_env.sim.virtual_lane import density_indicator
+from mivecc_env.sim.virtual_lane import density_indicator, density_indicator_reference
 
 pytestmark = pytest.mark.skipif(not graph_kernel.HAVE_NUMBA, reason="numba not available")
 
@@ -86,3 +86,48 @@ def test_select_per_group_is_the_stable_two_key_sort() -> None:
     np.testing.assert_array_equal(idx, order[keep])
     np.testing.assert_array_equal(grp, ref_group[keep])
     np.testing.assert_array_equal(col, rank[keep])
+
+
+def test_select_per_group_with_nan_and_signed_zero_keys() -> None:
+    # NaN sorts last (as in numpy's sorts), -0.0 ties with 0.0; every k from 1 to past n.
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        n, n_groups, k = (int(x) for x in (rng.integers(0, 300), rng.integers(1, 12),
+                                            rng.integers(1, 70)))
+        group = rng.integers(-1, n_groups, n)
+        key = np.round(rng.normal(size=n), 1)
+        key[rng.random(n) < 0.05] = np.nan
+        key[rng.random(n) < 0.05] = -0.0
+        idx, grp, col = graph_kernel.select_per_group(group, key, n_groups, k)
+        inside = np.flatnonzero(group >= 0)
+        order = inside[np.lexsort((key[inside], group[inside]))]
+        ref_group = group[order]
+        rank = np.arange(order.size) - np.searchsorted(ref_group, ref_group)
+        keep = rank < k
+        np.testing.assert_array_equal(idx, order[keep])
+        np.testing.assert_array_equal(grp, ref_group[keep])
+        np.testing.assert_array_equal(col, rank[keep])
+
+
+def test_density_indicator_and_area_centres_match_numpy() -> None:
+    cfg = MiVeCCConfig(rows=3, cols=3, scheme="EEC")
+    sim = Simulator(cfg, batch_size=4, seed=[1, 2, 3, 4], densities=[300.0, 900.0, 2100.0, 2700.0])
+    checked = 0
+    for t in range(300):
+        sim.step()
+        if t % 50 == 49:
+            view, net = sim.view, sim.network
+            for n in (1, 5, 40):
+                fast = density_indicator(view, n)
+                ref = density_indicator_reference(view, n)
+                assert fast.tobytes() == ref.tobytes()
+            area = net.control_area(view.lane, view.s)
+            inside = area >= 0
+            lane, node = view.lane[inside], area[inside]
+            which = np.argmax(net.lane_intersections[lane] == node[:, None], axis=1)
+            ref = net.lane_centres_s[lane, which]
+            fast = graph_kernel.area_centres(lane, node, net.lane_intersections,
+                                             net.lane_centres_s)
+            assert fast.tobytes() == ref.tobytes()
+            checked += int(inside.sum())
+    assert checked > 1000
