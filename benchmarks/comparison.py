@@ -5,18 +5,28 @@ For each grid (single intersection 1x1, 3x3), density and seed, every scheme of
 signal controllers, reservation and optimisation) runs one evaluation episode on the same
 seeded demand. Writes to ``--out``:
 
-* ``comparison.csv``: one row per run (the JSON keys of ``mivecc evaluate``),
-* ``comparison.md``: per grid, the mean average travel velocity of every scheme and the upper
-  bound per density, the collisions (summed over the seeds) and the max-pressure vs fixed-time
-  gain,
-* ``comparison_<grid>.png``: average travel velocity and collisions vs density.
+* ``comparison.csv``: one row per run (the JSON keys of ``mivecc evaluate``) and its ``source``
+  (the CSV it was reused from, or ``simulated``),
+* ``comparison_table.csv``: one row per grid, density and scheme: mean, sample standard
+  deviation, min and max over the seeds of the average travel velocity, the collisions summed
+  over the seeds, the upper bound and the share of it reached,
+* ``comparison.md``: the same as tables (mean +- sd, collisions), the max-pressure vs
+  fixed-time gain, and the command that wrote it,
+* ``comparison_<grid>.png``: average travel velocity (seed sd as error bars) and collisions vs
+  density.
 
-Runs already in a CSV given with ``--from-csv`` (e.g. ``docs/results/paper_table/paper_table.csv``
-for E, EE, EEC and fixed-time, its ``signalized``) are reused when grid, scheme, density, seed
-and steps match, so only the missing runs are simulated.
+Runs already in a CSV given with ``--from-csv`` are reused when grid, scheme, density, seed and
+steps match, so only the missing runs are simulated; when several CSVs hold a run, the LAST one
+given wins. Tables and figures are rebuilt from CSVs alone (seconds) with ``--tabulate-only``,
+e.g. after the paper table is regenerated (its E / EE / EEC and fixed-time runs replace the
+older ones)::
+
+    python benchmarks/comparison.py --tabulate-only --from-csv \\
+        docs/results/comparison/comparison.csv docs/results/paper_table/paper_table.csv
 
 Usage (one command; progress on stderr):
-    python benchmarks/comparison.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2
+    python benchmarks/comparison.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2 \\
+        --from-csv docs/results/paper_table/paper_table.csv
 """
 
 from __future__ import annotations
@@ -24,6 +34,8 @@ from __future__ import annotations
 import argparse
 import csv
 import multiprocessing as mp
+import shlex
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -36,6 +48,11 @@ SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "reservat
 DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
 #: Older name of a scheme in earlier CSVs.
 ALIASES = {"signalized": "fixed-time"}
+#: Columns of ``comparison_table.csv``.
+TABLE_KEYS = ("grid", "density", "scheme", "runs", "seeds", "steps", "velocity_mean_mps",
+              "velocity_sd_mps", "velocity_min_mps", "velocity_max_mps", "collisions",
+              "collided_vehicles", "upper_bound_mps", "share_of_upper_bound",
+              "throughput_vph_mean", "source")
 
 
 def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
@@ -50,8 +67,10 @@ def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
         from mivecc_agents.policies import pretrained_policies
 
         policies = pretrained_policies()
-    return evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
-                           progress=False, warn=False)
+    out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
+                          progress=False, warn=False)
+    out["source"] = "simulated"
+    return out
 
 
 def _key(row: dict[str, Any]) -> tuple:
@@ -61,102 +80,147 @@ def _key(row: dict[str, Any]) -> tuple:
 
 
 def load_rows(paths: Sequence[Path]) -> dict[tuple, dict[str, Any]]:
-    """Earlier runs by (scheme, rows, cols, density, seed, steps)."""
+    """Earlier runs by (scheme, rows, cols, density, seed, steps); a later path wins.
+
+    A row without a ``source`` gets the path it was read from.
+    """
     out: dict[tuple, dict[str, Any]] = {}
     for path in paths:
         with open(path, newline="", encoding="utf-8") as f:
             for row in csv.DictReader(f):
                 row = dict(row)
                 row["scheme"] = ALIASES.get(row["scheme"], row["scheme"])
+                if not row.get("source"):
+                    row["source"] = str(path)
                 out[_key(row)] = row
     return out
 
 
-def _mean(rows: list[dict[str, Any]], key: str) -> tuple[float, float]:
-    vals = np.array([float(r[key]) for r in rows])
-    return float(vals.mean()), float(vals.std())
+def _cell_runs(rows: list[dict[str, Any]], grid: tuple[int, int], scheme: str,
+               density: int) -> list[dict[str, Any]]:
+    r, c = grid
+    return [x for x in rows if x["scheme"] == scheme and int(float(x["rows"])) == r
+            and int(float(x["cols"])) == c and int(float(x["density"])) == density]
+
+
+def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
+              schemes: Sequence[str], densities: Sequence[int]) -> list[dict[str, Any]]:
+    """One row per (grid, density, scheme) with runs: :data:`TABLE_KEYS`.
+
+    ``velocity_sd_mps`` is the sample standard deviation over the seeds (0 for one run).
+    """
+    out = []
+    for g in grids:
+        for d in densities:
+            for s in schemes:
+                runs = sorted(_cell_runs(rows, g, s, d), key=lambda x: int(float(x["seed"])))
+                if not runs:
+                    continue
+                v = np.array([float(x["avg_travel_velocity_mps"]) for x in runs])
+                bound = float(runs[0]["upper_bound_mps"])
+                out.append({
+                    "grid": f"{g[0]}x{g[1]}", "density": d, "scheme": s, "runs": len(runs),
+                    "seeds": " ".join(str(int(float(x["seed"]))) for x in runs),
+                    "steps": " ".join(sorted({str(int(float(x["steps"]))) for x in runs})),
+                    "velocity_mean_mps": float(v.mean()),
+                    "velocity_sd_mps": float(v.std(ddof=1)) if v.size > 1 else 0.0,
+                    "velocity_min_mps": float(v.min()), "velocity_max_mps": float(v.max()),
+                    "collisions": int(sum(float(x["collisions"]) for x in runs)),
+                    "collided_vehicles": int(sum(float(x.get("collided_vehicles") or 0)
+                                                 for x in runs)),
+                    "upper_bound_mps": bound,
+                    "share_of_upper_bound": float(v.mean() / bound) if bound > 0 else float("nan"),
+                    "throughput_vph_mean": float(np.mean([float(x["throughput_vph"])
+                                                          for x in runs])),
+                    "source": " ".join(sorted({str(x.get("source") or "") for x in runs})),
+                })
+    return out
+
+
+def gain(rows: list[dict[str, Any]], grid: tuple[int, int], density: int,
+         scheme: str = "max-pressure", baseline: str = "fixed-time") -> float | None:
+    """Relative velocity gain [%] of ``scheme`` over ``baseline`` on the seeds both have."""
+    by_seed = {s: {int(float(x["seed"])): float(x["avg_travel_velocity_mps"])
+                   for x in _cell_runs(rows, grid, s, density)} for s in (scheme, baseline)}
+    common = sorted(set(by_seed[scheme]) & set(by_seed[baseline]))
+    if not common:
+        return None
+    new = float(np.mean([by_seed[scheme][k] for k in common]))
+    old = float(np.mean([by_seed[baseline][k] for k in common]))
+    return 100.0 * (new / old - 1.0) if old > 0 else None
 
 
 def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
              schemes: Sequence[str], densities: Sequence[int]) -> str:
-    """Tables of mean velocity (and collisions) per grid, density and scheme."""
+    """Tables of mean +- sd velocity (and collisions) per grid, density and scheme."""
+    table = {(t["grid"], t["density"], t["scheme"]): t
+             for t in summarise(rows, grids, schemes, densities)}
     lines = []
-    for r, c in grids:
-        sub = [x for x in rows if int(float(x["rows"])) == r and int(float(x["cols"])) == c]
+    for g in grids:
+        name = f"{g[0]}x{g[1]}"
+        sub = [t for k, t in table.items() if k[0] == name]
         if not sub:
             continue
-        seeds = sorted({int(float(x["seed"])) for x in sub})
-        steps = sorted({int(float(x["steps"])) for x in sub})
-        lines += [f"### {r}x{c}: average travel velocity [m/s] (mean over seeds {seeds}, "
-                  f"{'/'.join(map(str, steps))} steps); collisions summed over the seeds in "
-                  "brackets; n = runs where fewer than the seeds", ""]
+        seeds = sorted({int(s) for t in sub for s in t["seeds"].split()})
+        steps = {t["scheme"]: t["steps"] for t in sub}
+        short = sorted({f"{s} {v}" for s, v in steps.items()
+                        if v != max(steps.values(), key=lambda x: int(x.split()[0]))})
+        lines += [f"### {name}: average travel velocity [m/s], mean +- sample sd over seeds "
+                  f"{seeds}; collision events summed over the seeds in brackets; "
+                  "n = runs where fewer than the seeds", ""]
+        if short:
+            lines += [f"Steps per run: {max(steps.values())}, except {', '.join(short)}.", ""]
         lines.append("| density | " + " | ".join(schemes) + " | upper bound | max-pressure vs "
                      "fixed-time (same seeds) |")
         lines.append("|---" * (len(schemes) + 3) + "|")
         for d in densities:
-            cells = [str(d)]
-            bound = ""
+            cells, bound = [str(d)], ""
             for s in schemes:
-                runs = [x for x in sub if x["scheme"] == s and int(float(x["density"])) == d]
-                if not runs:
+                t = table.get((name, d, s))
+                if t is None:
                     cells.append("")
                     continue
-                v = _mean(runs, "avg_travel_velocity_mps")[0]
-                coll = int(sum(float(x["collisions"]) for x in runs))
-                few = f" n={len(runs)}" if len(runs) < len(seeds) else ""
-                cells.append(f"{v:.2f} ({coll}){few}")
-                bound = f"{float(runs[0]['upper_bound_mps']):.2f}"
-            gain = ""
-            by_seed = {s: {int(float(x["seed"])): float(x["avg_travel_velocity_mps"])
-                           for x in sub if x["scheme"] == s and int(float(x["density"])) == d}
-                       for s in ("fixed-time", "max-pressure")}
-            common = sorted(set(by_seed["fixed-time"]) & set(by_seed["max-pressure"]))
-            if common:  # on the seeds both have
-                mp_v = np.mean([by_seed["max-pressure"][k] for k in common])
-                ft_v = np.mean([by_seed["fixed-time"][k] for k in common])
-                gain = f"{100.0 * (mp_v / ft_v - 1.0):+.1f} %" if ft_v > 0 else ""
-            lines.append("| " + " | ".join([*cells, bound, gain]) + " |")
+                few = f" n={t['runs']}" if t["runs"] < len(seeds) else ""
+                cells.append(f"{t['velocity_mean_mps']:.2f} +- {t['velocity_sd_mps']:.2f} "
+                             f"({t['collisions']}){few}")
+                bound = f"{t['upper_bound_mps']:.2f}"
+            gp = gain(rows, g, d)
+            lines.append("| " + " | ".join([*cells, bound, "" if gp is None else f"{gp:+.1f} %"])
+                         + " |")
         lines.append("")
     return "\n".join(lines)
 
 
 def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[str],
          densities: Sequence[int], path: Path) -> None:
-    """Velocity and collisions vs density of every scheme, with the upper bound."""
+    """Velocity (seed sd as error bars) and collisions vs density, with the upper bound."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    r, c = grid
-    sub = [x for x in rows if int(float(x["rows"])) == r and int(float(x["cols"])) == c]
-    if not sub:
+    table = summarise(rows, [grid], schemes, densities)
+    if not table:
         return
+    r, c = grid
     fig, (ax_v, ax_c) = plt.subplots(1, 2, figsize=(12, 4.5))
-    bound = None
     for s in schemes:
-        xs, ms, sds, cs = [], [], [], []
-        for d in densities:
-            runs = [x for x in sub if x["scheme"] == s and int(float(x["density"])) == d]
-            if runs:
-                m, sd = _mean(runs, "avg_travel_velocity_mps")
-                xs.append(d)
-                ms.append(m)
-                sds.append(sd)
-                cs.append(sum(float(x["collisions"]) for x in runs))
-                bound = float(runs[0]["upper_bound_mps"])
-        if xs:
+        cells = [t for t in table if t["scheme"] == s]
+        if cells:
             label = f"MiVeCC-{s}" if s in ("E", "EE", "EEC") else s
-            ax_v.errorbar(xs, ms, yerr=sds, marker="o", capsize=3, label=label)
-            ax_c.plot(xs, cs, marker="o", label=label)
-    if bound is not None:
-        ax_v.axhline(bound, color="k", ls="--", label="upper bound")
+            xs = [t["density"] for t in cells]
+            ax_v.errorbar(xs, [t["velocity_mean_mps"] for t in cells],
+                          yerr=[t["velocity_sd_mps"] for t in cells], marker="o", capsize=3,
+                          label=label)
+            ax_c.plot(xs, [t["collisions"] for t in cells], marker="o", label=label)
+    ax_v.axhline(table[0]["upper_bound_mps"], color="k", ls="--", label="upper bound")
+    seeds = sorted({int(x) for t in table for x in t["seeds"].split()})
     ax_v.set_xlabel("density [veh/lane/h]")
     ax_v.set_ylabel("average travel velocity [m/s]")
-    ax_v.set_title(f"{r}x{c}: average travel velocity")
+    ax_v.set_title(f"{r}x{c}: average travel velocity (mean +- sd, seeds {seeds})")
     ax_v.legend(fontsize=8)
     ax_c.set_xlabel("density [veh/lane/h]")
-    ax_c.set_ylabel("collisions (sum over seeds)")
+    ax_c.set_ylabel("collision events (sum over seeds)")
     ax_c.set_yscale("symlog")
     ax_c.set_title(f"{r}x{c}: collisions (strict: any two vehicles < 2 m)")
     fig.tight_layout()
@@ -175,17 +239,38 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="fewer steps for a slow scheme, e.g. optimisation=1000")
     p.add_argument("--workers", type=int, default=1, help="processes (1: in this process)")
     p.add_argument("--from-csv", nargs="+", type=Path, default=[],
-                   help="reuse matching runs of earlier CSVs")
+                   help="reuse matching runs of earlier CSVs (the last CSV holding a run wins)")
     p.add_argument("--tabulate-only", action="store_true",
                    help="simulate nothing: tables and figures of the runs found in --from-csv")
     p.add_argument("--out", type=Path, default=Path("docs/results/comparison"))
     return p.parse_args(argv)
 
 
+def _grids(specs: Sequence[str]) -> list[tuple[int, int]]:
+    out = []
+    for g in specs:
+        parts = g.lower().split("x")
+        if len(parts) != 2 or not all(p.isdigit() and int(p) >= 1 for p in parts):
+            raise SystemExit(f"--grids: expected ROWSxCOLS with integers >= 1, got {g!r}")
+        out.append((int(parts[0]), int(parts[1])))
+    return out
+
+
+def _steps_for(items: Sequence[str], schemes: Sequence[str]) -> dict[str, int]:
+    out = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        if name not in schemes or not value.isdigit() or int(value) < 1:
+            raise SystemExit(f"--steps-for: expected SCHEME=STEPS with SCHEME in {list(schemes)} "
+                             f"and STEPS an integer >= 1, got {item!r}")
+        out[name] = int(value)
+    return out
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    grids = [tuple(int(x) for x in g.lower().split("x")) for g in args.grids]
-    steps_for = {k: int(v) for k, v in (item.split("=") for item in args.steps_for)}
+    grids = _grids(args.grids)
+    steps_for = _steps_for(args.steps_for, SCHEMES)
     known = load_rows(args.from_csv)
     args.out.mkdir(parents=True, exist_ok=True)
     jobs, rows = [], []
@@ -213,22 +298,31 @@ def main(argv: Sequence[str] | None = None) -> int:
                 rows.append(res)
                 _write_csv(rows, csv_path)
     _write_csv(rows, csv_path)
+    table = summarise(rows, grids, args.schemes, args.densities)
+    _write_csv(table, args.out / "comparison_table.csv", keys=TABLE_KEYS, sort=False)
+    command = "python benchmarks/comparison.py " + shlex.join(
+        sys.argv[1:] if argv is None else list(argv))
     md = markdown(rows, grids, args.schemes, args.densities)
-    (args.out / "comparison.md").write_text(md + "\n", encoding="utf-8")
+    header = (f"Written by `{command}` from {len(rows)} runs (sources: "
+              f"{', '.join(sorted({str(r.get('source') or '') for r in rows})) or 'none'}; "
+              "`simulated` = run by that command or an earlier one whose CSV it reused).\n")
+    (args.out / "comparison.md").write_text(header + "\n" + md + "\n", encoding="utf-8")
     for g in grids:
         plot(rows, g, args.schemes, args.densities, args.out / f"comparison_{g[0]}x{g[1]}.png")
     print(md)
     return 0
 
 
-def _write_csv(rows: list[dict[str, Any]], path: Path) -> None:
-    keys: list[str] = []
-    for r in rows:
-        keys += [k for k in r if k not in keys]
+def _write_csv(rows: list[dict[str, Any]], path: Path, keys: Sequence[str] | None = None,
+               sort: bool = True) -> None:
+    if keys is None:
+        keys = []
+        for r in rows:
+            keys += [k for k in r if k not in keys]
     with open(path, "w", newline="", encoding="utf-8") as f:
-        w = csv.DictWriter(f, fieldnames=keys)
+        w = csv.DictWriter(f, fieldnames=list(keys))
         w.writeheader()
-        for r in sorted(rows, key=_key):
+        for r in sorted(rows, key=_key) if sort else rows:
             w.writerow(r)
 
 
