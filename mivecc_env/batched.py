@@ -34,10 +34,10 @@ from mivecc_env import metrics
 from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.actions import checked_action
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
-from mivecc_env.sim import edge_selection, sections
+from mivecc_env.sim import edge_selection, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
-from mivecc_env.sim.virtual_lane import density_indicator
+from mivecc_env.sim.virtual_lane import VirtualLaneView, density_indicator
 
 #: Names of the reward terms (the reward of a node is their sum).
 REWARD_TERMS: tuple[str, ...] = ("reward_sv", "reward_velocity", "reward_collision")
@@ -359,12 +359,8 @@ class BatchedMiVeCCEnv:
             return ({k: np.zeros((b, n)) for k in REWARD_TERMS},
                     {k: np.zeros(b) for k in REWARD_TERMS})
         view = sim.view
-        area = self._area
-        inside = area >= 0
-        dv = self._v - c.reward_v_ref_mps
-        node = view.env[inside] * n + area[inside]
-        count = np.bincount(node, minlength=b * n).reshape(b, n)
-        vel_sum = np.bincount(node, dv[inside], minlength=b * n).reshape(b, n)
+        count, vel_sum, env_count, env_vel = self._node_sums(view)
+        count, vel_sum = count.reshape(b, n), vel_sum.reshape(b, n)
         hit = events.collided_area >= 0
         hits = np.bincount(events.collided_env[hit] * n + events.collided_area[hit],
                            minlength=b * n).reshape(b, n)
@@ -380,15 +376,27 @@ class BatchedMiVeCCEnv:
             sv_sum = np.append(sim.safety.sv, 0.0)[vi].sum(axis=2)
             n_dec = (vi >= 0).sum(axis=2)
             edge["reward_sv"] = c.reward_sv_weight * (sv_sum / np.maximum(n_dec, 1))
-        pop = self._cloud_pop
-        env_pop = view.env[pop]
-        env_count = np.maximum(np.bincount(env_pop, minlength=b), 1)
         cloud = {
             "reward_sv": np.zeros(b),
-            "reward_velocity": np.bincount(env_pop, dv[pop], minlength=b) / env_count,
+            "reward_velocity": env_vel / np.maximum(env_count, 1),
             "reward_collision": -c.collision_penalty * events.collided_vehicles.astype(np.float64),
         }
         return edge, cloud
+
+    def _node_sums(self, view: VirtualLaneView) -> tuple[NDArray[np.int64], FloatArray,
+                                                          NDArray[np.int64], FloatArray]:
+        """Vehicles and sums of ``v - reward_v_ref_mps`` per edge node (B * n_edge,) and over
+        the cloud population per environment (B,) (compiled: :mod:`..sim.reward_kernel`)."""
+        b, n, v_ref = self.batch_size, self.n_edge, self.config.reward_v_ref_mps
+        area, pop = self._area, self._cloud_pop
+        if reward_kernel.HAVE_NUMBA:
+            return reward_kernel.node_sums(view.env, area, pop, self._v, v_ref, b, n)
+        inside = area >= 0
+        dv = self._v - v_ref
+        node = view.env[inside] * n + area[inside]
+        env_pop = view.env[pop]
+        return (np.bincount(node, minlength=b * n), np.bincount(node, dv[inside], minlength=b * n),
+                np.bincount(env_pop, minlength=b), np.bincount(env_pop, dv[pop], minlength=b))
 
     # ------------------------------------------------------------------------------------
     def _next_sim_seed(self, b: int) -> int:

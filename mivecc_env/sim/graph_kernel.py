@@ -272,3 +272,25 @@ def density_indicator(
     """Compiled :func:`mivecc_env.sim.virtual_lane.density_indicator` (same arguments taken
     from the view; identical results)."""
     return _density_indicator(own_point, run_start, run_end, point_pos, int(n))
+
+
+@njit
+def _control_area(lane, s, lane_centres_s, lane_intersections, radius, seg):  # pragma: no cover
+    out = np.empty(lane.shape[0], np.int64)
+    n_on = lane_centres_s.shape[1]
+    for i in range(lane.shape[0]):
+        k = np.int64(np.floor((s[i] + radius) / seg)) - 1
+        k = min(max(k, 0), n_on - 1)
+        centre = lane_centres_s[lane[i], k]
+        inside = s[i] >= centre - radius and s[i] < centre + radius
+        out[i] = lane_intersections[lane[i], k] if inside else -1
+    return out
+
+
+def control_area(
+    lane: np.ndarray, s: np.ndarray, lane_centres_s: np.ndarray,
+    lane_intersections: np.ndarray, radius: float, seg: float,
+) -> np.ndarray:
+    """Compiled :meth:`mivecc_env.sim.network.GridNetwork.control_area` of 1-D arrays
+    (identical results)."""
+    return _control_area(lane, s, lane_centres_s, lane_intersections, float(radius), float(seg))

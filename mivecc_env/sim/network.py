@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import graph_kernel
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -108,6 +109,10 @@ class GridNetwork:
         ``control_radius_m`` (along the lane, half-open ``[-r, r)``) of its centre.
         """
         seg = self.segment_length_m
+        if graph_kernel.HAVE_NUMBA and lane.ndim == 1 and s.ndim == 1 and lane.dtype == np.int64:
+            return graph_kernel.control_area(lane, s.astype(np.float64, copy=False),
+                                             self.lane_centres_s, self.lane_intersections,
+                                             self.control_radius_m, seg)
         n_on = self.lane_centres_s.shape[1]
         k = np.clip(np.floor((s + self.control_radius_m) / seg).astype(np.int64) - 1, 0, n_on - 1)
         centre = self.lane_centres_s[lane, k]
