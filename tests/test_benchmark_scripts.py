@@ -5,15 +5,20 @@ from __future__ import annotations
 import csv
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import comparison
 import paper_table
+import released_reference
 import rules_study
 import trace_collisions
+
+from mivecc_env import mivecc_v0
 
 
 def test_rules_study_writes_its_table(tmp_path: Path) -> None:
@@ -75,3 +80,51 @@ def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixtu
     assert [r["step"] for r in records] == [1184]
     assert sorted(records[0]["vehicles"]) == [619, 696] and 7 in records[0]["areas"]
     assert "v619 lane 2 s= 292.24" in out and "collision events: 1" in out
+
+
+def test_released_reference_geometry_and_streams() -> None:
+    # released lanes by group of 3: southbound, westbound, northbound, eastbound (x = -155,
+    # -5, 145 for the southbound ones); this grid shifted by (-300, -300) m
+    assert released_reference.lane_map(2100.0).tolist() == [9, 10, 11, 5, 4, 3, 8, 7, 6, 0, 1, 2]
+    xy = released_reference.released_xy(np.array([0, 4, 7, 11]),
+                                        np.array([450.0, 153.82, 146.55, 300.0]))
+    np.testing.assert_allclose(xy, [[-155, 300], [3.82, 5], [5, 3.45], [-150, 145]], atol=1e-9)
+    table = released_reference.env_arrivals(2100.0, 1, 30.0)
+    env = mivecc_v0.parallel_env(rows=3, cols=3, density=2100.0, scheme="E", model="released")
+    env.reset(seed=1)
+    zero = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
+    for _ in range(40):
+        env.step(zero)
+    sim, lanes = env.sim, released_reference.lane_map(2100.0)
+    entered = sim.active[0]
+    assert entered.sum() > 3
+    for slot in np.flatnonzero(entered):  # every entered vehicle's arrival is in the table
+        assert sim.t_arrive[0, slot] in table[:, lanes[sim.lane[0, slot]]]
+    assert (np.diff(released_reference.poisson_arrivals(2100.0, 0, 60.0)[:-1], axis=0)
+            >= 1.0 - 1e-9).all()  # the 1 s gap floor
+
+
+def test_released_reference_counts_each_close_pair_once() -> None:
+    class Scene:  # two vehicles crossing at (5, 5), closer than 2 m for two steps
+        def __init__(self, arrivals: np.ndarray, args: object, m_thr: float) -> None:
+            self.current_time, self.passed_veh, self.passed_veh_step_total = 0.0, 0, 0
+            self.veh_info = [[] for _ in range(12)]
+            self.veh_info[4] = [{"p": 160.0, "id_info": [0, 0]}]  # westbound, y = 5
+            self.veh_info[7] = [{"p": 149.2, "id_info": [1, 0]}]  # northbound, x = 5
+
+        def step(self, *args: object) -> None:
+            for lane in (4, 7):
+                self.veh_info[lane][0]["p"] -= 1.0
+
+        def scene_update(self) -> tuple[float, int, list]:
+            self.current_time += 0.1
+            return 0.0, 0, []
+
+        def delete_vehicle(self) -> None:
+            pass
+
+    out = released_reference.run(SimpleNamespace(MultiTrafficInteraction=Scene),
+                                 np.zeros((1, 12)), 10)
+    assert out["events"] == 1  # close for several steps: one pair, one event
+    (_, lane_a, p_a, lane_b, p_b, dist), = out["pairs"].values()
+    assert (lane_a, lane_b) == (4, 7) and (p_a, p_b) == (156.0, 145.2) and dist == 1.02

@@ -77,6 +77,16 @@ def test_rule_options_reach_the_config(capsys: pytest.CaptureFixture[str]) -> No
     assert result["omega"] == pytest.approx(0.3)
 
 
+def test_released_model_from_the_command_line(capsys: pytest.CaptureFixture[str]) -> None:
+    result, _ = _run_json(capsys, "--set", "model=released", "--set", "edge_sv_gate=none")
+    assert result["model"] == "released"
+    assert result["cloud_pick_population"] == "before_last_centre"  # set by the preset
+    assert result["edge_sv_gate"] is None  # an explicit field wins over the preset (-2 there)
+    assert result["released_velocity_mps"] > 0.0
+    for key in ("min_ttc_s", "ttc_p1_s", "min_pet_s", "min_distance_m"):
+        assert result[key] >= 0.0, key
+
+
 def test_signalized_baseline(capsys: pytest.CaptureFixture[str]) -> None:
     result, err = _run_json(capsys, "--scheme", "signalized")
     assert result["scheme"] == "signalized" and result["control"] == "signalized"

@@ -1,0 +1,171 @@
+"""Run the authors' released simulator as MiVeCC-E and count strict collision events.
+
+A diagnostic beside ``released_study.py``: it does not use this project's model at all. It
+loads ``traffic_interaction_scene.py`` from a local clone of the authors' repository
+(github.com/Mingtzge/MiVeCC_with_DRL; nothing of it is copied here, the path is an argument),
+drives it as MiVeCC-E (zero edge actions, no cloud fusion, its same-lane rule "priori
+knowledge" on, test-time settings) and checks after every move whether two vehicles are closer
+than 2 m (Euclidean distance of their centres, any pair: this project's strict check). Each
+pair counts once (the released code removes only the vehicles its own lenient check flags).
+
+Arrival streams (``--streams``):
+
+* ``env``: exactly the arrival times of this project's environment reset with ``--seeds``
+  (``mivecc_v0.parallel_env(...).reset(seed=s)``, the streams of ``mivecc evaluate --seed`` and
+  of ``evaluate_scheme``), each project lane fed to the released lane with the same position
+  and direction (the released grid is this one shifted by (-300, -300) m);
+* ``poisson``: Poisson streams with the 1 s gap floor of the authors' MATLAB generator
+  (``gen_multi_arvTime.m``), drawn from ``numpy.random.default_rng(seed)``.
+
+Example (the commands of ``docs/results/released_study.md``):
+    python benchmarks/released_reference.py \\
+        --scene ~/MiVeCC_with_DRL/traffic_interaction_scene.py \\
+        --streams env --density 1500 2100 --seeds 0 1 2
+
+Needs numpy only (the released file's matplotlib import is stubbed; its ``np.float`` /
+``np.int`` aliases are restored for numpy >= 1.24). About 80 s per 3000-step run on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import sys
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+
+from mivecc_env import mivecc_v0
+
+#: Released geometry: lane ``i``'s position from its distance ``p`` to the last centre [m].
+LANE_OFFSET_M = 5.0
+SEGMENT_M = 150.0
+VALID_LEN_M = 450.0  # p at entry (3 intersections x 150 m)
+STRICT_M = 2.0
+DT_S = 0.1
+
+
+def load_scene(path: Path) -> types.ModuleType:
+    """The released scene module, imported from ``path`` without matplotlib."""
+    for name in ("matplotlib", "matplotlib.pyplot"):
+        sys.modules.setdefault(name, types.ModuleType(name))
+    np.float = float  # type: ignore[attr-defined]  # removed aliases the released code uses
+    np.int = int  # type: ignore[attr-defined]
+    mod = types.ModuleType("released_scene")
+    exec(compile(path.read_text(), str(path), "exec"), mod.__dict__)
+    return mod
+
+
+def released_xy(lane: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(n, 2) centre positions [m] of released lanes ``lane`` at distance ``p`` to their last
+    centre (groups of 3 lanes: southbound, westbound, northbound, eastbound)."""
+    g, k = lane // 3, (lane % 3).astype(float)
+    across = SEGMENT_M * (1 - k) + LANE_OFFSET_M  # |coordinate| of the lane across the grid
+    x = np.select([g == 0, g == 1, g == 2], [-across, p - SEGMENT_M, across], SEGMENT_M - p)
+    y = np.select([g == 0, g == 1, g == 2], [p - SEGMENT_M, across, SEGMENT_M - p], -across)
+    return np.stack([x, y], axis=1)
+
+
+def lane_map(density: float) -> np.ndarray:
+    """(12,) released lane of each project lane (same entry point and direction)."""
+    env = mivecc_v0.parallel_env(rows=3, cols=3, density=density, scheme="E")
+    net = env.sim.network
+    lanes = np.arange(net.n_lanes)
+    own = np.concatenate([net.xy(lanes, np.zeros(12)), net.xy(lanes, np.full(12, 10.0))], 1)
+    own -= 2 * SEGMENT_M
+    rel = np.concatenate([released_xy(lanes, np.full(12, VALID_LEN_M)),
+                          released_xy(lanes, np.full(12, VALID_LEN_M - 10.0))], 1)
+    dist = np.abs(own[:, None, :] - rel[None, :, :]).max(axis=2)
+    match = dist.argmin(axis=1)
+    if not (dist.min(axis=1) < 1e-9).all() or np.unique(match).size != 12:
+        raise RuntimeError("lane_map: the two grids do not match lane by lane")
+    return match
+
+
+def env_arrivals(density: float, seed: int, horizon_s: float) -> np.ndarray:
+    """(N + 1, 12) arrival times [s] of the project's environment reset with ``seed``, in
+    released lane order, ``inf`` after a lane's last arrival before ``horizon_s``; the last row
+    is zeros (the released files end that way)."""
+    env = mivecc_v0.parallel_env(rows=3, cols=3, density=density, scheme="E", model="released")
+    env.reset(seed=seed)
+    proc = copy.deepcopy(env.sim.arrivals)  # streams at time 0; nothing has entered
+    proc.advance(horizon_s)
+    count = proc.arrived[0]
+    # Each lane's own arrivals up to the horizon, then +inf (never due); the buffer never
+    # wraps here: nothing entered, so it grows instead.
+    out = np.full((int(count.max()) + 1, 12), np.inf)
+    for lane, rel in enumerate(lane_map(density).tolist()):
+        out[: count[lane], rel] = proc.times[0, lane, : count[lane]]
+    out[-1] = 0.0
+    return out
+
+
+def poisson_arrivals(density: float, seed: int, horizon_s: float) -> np.ndarray:
+    """(N + 1, 12) Poisson arrival times [s] with a 1 s gap floor (the authors' generator)."""
+    rng = np.random.default_rng(seed)
+    n = int(density * horizon_s / 3600 * 1.5) + 20
+    gaps = np.maximum(-np.log(rng.random((n, 12))) * 3600.0 / density, 1.0)
+    return np.vstack([np.cumsum(gaps, axis=0), np.zeros((1, 12))])
+
+
+def run(scene: types.ModuleType, arrivals: np.ndarray, steps: int) -> dict:
+    """One MiVeCC-E run of the released simulator; strict events after every move."""
+    args = types.SimpleNamespace(collision_thr=STRICT_M, c_mode="closer", s_agent_num=15,
+                                 m_agent_num=60, type="s_test", priori_knowledge=True)
+    env = scene.MultiTrafficInteraction(arrivals, args, m_thr=0.0)  # m_thr 0: no cloud
+    pairs: dict[tuple[int, int], tuple] = {}
+    flagged = 0
+    # The constructor runs until the first vehicle exists: count steps on the same clock.
+    for _ in range(steps - round(env.current_time / DT_S)):
+        env.step(np.zeros((9, 15)), np.zeros(60), 0)
+        lane = np.array([i for i in range(12) for _ in env.veh_info[i]], dtype=np.int64)
+        p = np.array([it["p"] for i in range(12) for it in env.veh_info[i]])
+        vid = np.array([it["id_info"][0] for i in range(12) for it in env.veh_info[i]])
+        if vid.size > 1:
+            xy = released_xy(lane, p)
+            d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
+            a, b = np.nonzero(np.triu(d2 < STRICT_M**2, 1))
+            for i, j in zip(a.tolist(), b.tolist(), strict=True):
+                key = (int(min(vid[i], vid[j])), int(max(vid[i], vid[j])))
+                pairs.setdefault(key, (round(env.current_time, 1), int(lane[i]),
+                                       round(float(p[i]), 2), int(lane[j]),
+                                       round(float(p[j]), 2), round(float(np.sqrt(d2[i, j])), 2)))
+        flagged += env.scene_update()[1]
+        env.delete_vehicle()
+    mean_s = env.passed_veh_step_total / max(env.passed_veh, 1) * DT_S
+    return {"events": len(pairs), "flagged": flagged, "passed": env.passed_veh,
+            "v455": (VALID_LEN_M + LANE_OFFSET_M) / mean_s if mean_s else 0.0,
+            "pairs": pairs}
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--scene", type=Path, required=True,
+                   help="traffic_interaction_scene.py of a clone of the authors' repository")
+    p.add_argument("--streams", choices=["env", "poisson"], default="env")
+    p.add_argument("--density", type=float, nargs="+", default=[2100.0], help="veh/lane/h")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--steps", type=int, default=3000)
+    args = p.parse_args(argv)
+    scene = load_scene(args.scene)
+    make = env_arrivals if args.streams == "env" else poisson_arrivals
+    rows = []
+    for density in args.density:
+        for seed in args.seeds:
+            t0 = time.perf_counter()
+            out = run(scene, make(density, seed, args.steps * DT_S + 60.0), args.steps)
+            out |= {"density": density, "seed": seed, "streams": args.streams}
+            rows.append(out)
+            print(f"{args.streams} density {density:.0f} seed {seed}: strict events "
+                  f"{out['events']}, released-flagged {out['flagged']}, passed {out['passed']}, "
+                  f"v455 {out['v455']:.3f} m/s ({time.perf_counter() - t0:.0f} s)", flush=True)
+            for (va, vb), ev in out["pairs"].items():
+                print(f"    vehicles {va}, {vb}: t = {ev[0]} s, lane {ev[1]} p = {ev[2]} m, "
+                      f"lane {ev[3]} p = {ev[4]} m, distance {ev[5]} m", flush=True)
+    return rows
+
+
+if __name__ == "__main__":
+    main()
