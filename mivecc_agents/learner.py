@@ -59,7 +59,8 @@ class DDPGLearner:
         group: Agent group name (``"edge"`` or ``"cloud"``).
         preset: Hyper-parameters (learning rates, gamma, tau, clipping, minibatch size).
         progress: Callable returning the fraction of the run done in [0, 1] (drives the linear
-            learning-rate decay to 0); default: no decay.
+            learning-rate decay to 0); default: no decay. Ignored when the preset's
+            ``lr_schedule`` is ``"constant"``.
     """
 
     def __init__(
@@ -86,6 +87,8 @@ class DDPGLearner:
             ]
         )
         frac = progress or (lambda: 0.0)
+        if preset.lr_schedule == "constant":  # the released trainer
+            frac = lambda: 0.0  # noqa: E731
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, lambda _: max(0.0, 1.0 - frac())
         )

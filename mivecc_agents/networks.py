@@ -51,6 +51,7 @@ layer sizes, strides, padding and LayerNorm placement exactly, so no custom laye
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -68,10 +69,12 @@ __all__ = [
     "CLOUD_SPEC",
     "EDGE_SPEC",
     "NETWORK_SPECS",
+    "NETWORK_VARIANTS",
     "ConvActivation",
     "MiVeCCActorNet",
     "MiVeCCCriticNet",
     "NetworkSpec",
+    "NetworkVariant",
     "NodeKind",
     "count_parameters",
     "get_network_spec",
@@ -86,6 +89,7 @@ NodeKind = Literal["edge", "cloud"]
 """Which coordinator a network belongs to."""
 
 ConvActivation = Literal["relu", "tanh"]
+NetworkVariant = Literal["paper", "released"]
 """Activation after each convolution of the actor (the critic's are always ReLU)."""
 
 ACTION_SCALE_MPS2: float = 3.0
@@ -127,6 +131,11 @@ class NetworkSpec:
             [-]; checked against the geometry in ``__post_init__``.
         actor_layers: Output sizes of the actor's dense layers; the last equals ``grid_size``.
         critic_layers: Output sizes of the critic's dense layers; the last is 1.
+        variant: ``"paper"`` (the table above) or ``"released"`` (the authors' released
+            networks: a LayerNorm over the input graph, over the flattened convolution
+            features and after every hidden dense layer of actor and critic, tanh after the
+            actor's convolutions, every dense weight and bias drawn in +-3e-3, and the
+            released critic widths 96-96-48-24-1 / 512-256-64-1; :func:`get_network_spec`).
     """
 
     kind: NodeKind
@@ -138,6 +147,7 @@ class NetworkSpec:
     flattened_size: int
     actor_layers: tuple[int, ...]
     critic_layers: tuple[int, ...]
+    variant: NetworkVariant = "paper"
 
     def __post_init__(self) -> None:
         """Check that the table's numbers are consistent with each other.
@@ -225,24 +235,40 @@ NETWORK_SPECS: dict[str, NetworkSpec] = {"edge": EDGE_SPEC, "cloud": CLOUD_SPEC}
 """The specs by node kind."""
 
 
-def get_network_spec(kind: NodeKind) -> NetworkSpec:
+#: Critic widths of the authors' released code (not the paper's table).
+RELEASED_CRITIC_LAYERS: dict[str, tuple[int, ...]] = {
+    "edge": (96, 96, 48, 24, 1),
+    "cloud": (512, 256, 64, 1),
+}
+NETWORK_VARIANTS: tuple[str, ...] = ("paper", "released")
+
+
+def get_network_spec(kind: NodeKind, variant: NetworkVariant = "paper") -> NetworkSpec:
     """Return the layer sizes of a node kind.
 
     Args:
         kind: ``"edge"`` or ``"cloud"``.
+        variant: ``"paper"`` (the paper's table) or ``"released"`` (see :class:`NetworkSpec`).
 
     Returns:
         The kind's :class:`NetworkSpec`.
 
     Raises:
-        ValueError: If ``kind`` is not a known node kind.
+        ValueError: If ``kind`` or ``variant`` is not known.
     """
     try:
-        return NETWORK_SPECS[kind]
+        spec = NETWORK_SPECS[kind]
     except KeyError:
         raise ValueError(
             f"unknown node kind {kind!r}; expected one of {sorted(NETWORK_SPECS)}"
         ) from None
+    if variant == "paper":
+        return spec
+    if variant != "released":
+        raise ValueError(f"network variant: must be one of {NETWORK_VARIANTS}, got {variant!r}")
+    return dataclasses.replace(
+        spec, critic_layers=RELEASED_CRITIC_LAYERS[kind], variant="released"
+    )
 
 
 def _make_conv_stack(
@@ -304,10 +330,18 @@ def _conv_features(convs: nn.Module, observation: torch.Tensor, spec: NetworkSpe
 
 
 class _ConvNode(nn.Module):
-    """Shared part of the actor and the critic: a convolution stack over the state graph."""
+    """Shared part of the actor and the critic: a convolution stack over the state graph
+    (released variant: with a LayerNorm over the input graph and one over the features)."""
 
     spec: NetworkSpec
     convs: nn.Module
+
+    def _make_norms(self, device: torch.device | str | None) -> None:
+        released = self.spec.variant == "released"
+        self.input_norm = (nn.LayerNorm(list(self.spec.observation_shape), device=device)
+                           if released else nn.Identity())
+        self.feature_norm = (nn.LayerNorm(self.spec.flattened_size, device=device)
+                             if released else nn.Identity())
 
     def features(self, observation: torch.Tensor) -> torch.Tensor:
         """Flattened convolution features.
@@ -318,7 +352,9 @@ class _ConvNode(nn.Module):
         Returns:
             Features ``(..., flattened_size)``.
         """
-        return _conv_features(self.convs, observation, self.spec)
+        _check_observation(observation, self.spec)
+        x = self.input_norm(observation)
+        return self.feature_norm(_conv_features(self.convs, x, self.spec))
 
 
 class MiVeCCActorNet(_ConvNode):
@@ -346,15 +382,20 @@ class MiVeCCActorNet(_ConvNode):
                 f"{sorted(_ACTIVATIONS)}"
             )
         self.spec = spec
+        released = spec.variant == "released"
+        if released:
+            conv_activation = "tanh"
         self.convs = _make_conv_stack(spec, _ACTIVATIONS[conv_activation], device)
+        self._make_norms(device)
         self.mlp = MLP(
             in_features=spec.flattened_size,
             out_features=spec.action_dim,
             num_cells=list(spec.actor_hidden),
             activation_class=nn.Tanh,
             device=device,
+            **(_hidden_norms(spec.actor_hidden) if released else {}),
         )
-        _init_actor_output(self.mlp, generator=None)
+        _init_dense(self, generator=None)
 
     @property
     def output_layer(self) -> nn.Linear:
@@ -391,15 +432,17 @@ class MiVeCCCriticNet(_ConvNode):
         super().__init__()
         self.spec = spec
         self.convs = _make_conv_stack(spec, nn.ReLU, device)
+        self._make_norms(device)
         self.mlp = MLP(
             in_features=spec.critic_input_size,
             out_features=spec.critic_layers[-1],
             num_cells=list(spec.critic_hidden),
             activation_class=nn.ReLU,
-            norm_class=nn.LayerNorm,
-            norm_kwargs=[{"normalized_shape": n} for n in spec.critic_hidden],
             device=device,
+            **_hidden_norms(spec.critic_hidden),
         )
+        if spec.variant == "released":
+            _init_dense(self, generator=None)
 
     def forward(
         self, observation: torch.Tensor, action: torch.Tensor, mask: torch.Tensor
@@ -430,6 +473,25 @@ def _last_linear(module: nn.Module) -> nn.Linear:
     if not linears:
         raise ValueError("module has no nn.Linear layer")
     return linears[-1]
+
+
+def _hidden_norms(hidden: Sequence[int]) -> dict[str, object]:
+    """MLP keywords placing a LayerNorm between each hidden Linear and its activation."""
+    return {"norm_class": nn.LayerNorm,
+            "norm_kwargs": [{"normalized_shape": n} for n in hidden]}
+
+
+def _init_dense(net: _ConvNode, generator: torch.Generator | None) -> None:
+    """Dense-layer init of a network: the paper variant draws only the actor's last layer in
+    +-3e-3 (DDPG); the released variant draws every dense weight and bias in +-3e-3."""
+    if net.spec.variant != "released":
+        _init_actor_output(net.mlp, generator)
+        return
+    with torch.no_grad():
+        for layer in (m for m in net.mlp.modules() if isinstance(m, nn.Linear)):
+            b = ACTOR_FINAL_INIT_BOUND
+            nn.init.uniform_(layer.weight, -b, b, generator=generator)
+            nn.init.uniform_(layer.bias, -b, b, generator=generator)
 
 
 def _init_actor_output(mlp: nn.Module, generator: torch.Generator | None) -> None:
@@ -483,6 +545,7 @@ def make_actor_net(
     generator: torch.Generator | None = None,
     conv_activation: ConvActivation = "relu",
     device: torch.device | str | None = None,
+    variant: NetworkVariant = "paper",
 ) -> MiVeCCActorNet:
     """Build the actor network of a node kind.
 
@@ -490,19 +553,21 @@ def make_actor_net(
         kind: ``"edge"`` or ``"cloud"``.
         generator: If given, every parameter is re-drawn from it (same seed, same weights) and
             the global random state is left untouched; otherwise PyTorch's global RNG is used.
-        conv_activation: Activation after each convolution, ``"relu"`` (default) or ``"tanh"``.
+        conv_activation: Activation after each convolution, ``"relu"`` (default) or ``"tanh"``
+            (the released variant always uses tanh).
         device: Device of the parameters.
+        variant: ``"paper"`` or ``"released"`` (:class:`NetworkSpec`).
 
     Returns:
         ``forward(observation (..., K, K, 3), mask (..., K)) -> action (..., K)`` [m/s^2].
     """
-    spec = get_network_spec(kind)
+    spec = get_network_spec(kind, variant)
     if generator is None:
         return MiVeCCActorNet(spec, conv_activation=conv_activation, device=device)
     with torch.random.fork_rng(devices=[]):
         net = MiVeCCActorNet(spec, conv_activation=conv_activation, device=device)
     reset_parameters(net, generator)
-    _init_actor_output(net.mlp, generator)
+    _init_dense(net, generator)
     return net
 
 
@@ -511,6 +576,7 @@ def make_critic_net(
     *,
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
+    variant: NetworkVariant = "paper",
 ) -> MiVeCCCriticNet:
     """Build the critic network of a node kind.
 
@@ -519,16 +585,19 @@ def make_critic_net(
         generator: If given, every parameter is re-drawn from it (same seed, same weights) and
             the global random state is left untouched; otherwise PyTorch's global RNG is used.
         device: Device of the parameters.
+        variant: ``"paper"`` or ``"released"`` (:class:`NetworkSpec`).
 
     Returns:
         ``forward(observation (..., K, K, 3), action (..., K), mask (..., K)) -> value (..., 1)``.
     """
-    spec = get_network_spec(kind)
+    spec = get_network_spec(kind, variant)
     if generator is None:
         return MiVeCCCriticNet(spec, device=device)
     with torch.random.fork_rng(devices=[]):
         net = MiVeCCCriticNet(spec, device=device)
     reset_parameters(net, generator)
+    if variant == "released":
+        _init_dense(net, generator)
     return net
 
 
@@ -544,6 +613,7 @@ def make_actor(
     generator: torch.Generator | None = None,
     conv_activation: ConvActivation = "relu",
     device: torch.device | str | None = None,
+    variant: NetworkVariant = "paper",
 ) -> TensorDictModule:
     """Wrap the actor network for a TorchRL multi-agent group.
 
@@ -558,7 +628,8 @@ def make_actor(
         A module reading ``(group, "observation")`` and ``(group, "mask")`` and writing
         ``(group, "action")`` [m/s^2].
     """
-    net = make_actor_net(kind, generator=generator, conv_activation=conv_activation, device=device)
+    net = make_actor_net(kind, generator=generator, conv_activation=conv_activation,
+                         device=device, variant=variant)
     return TensorDictModule(
         net,
         in_keys=_group_keys(group, ("observation", "mask")),
@@ -572,6 +643,7 @@ def make_critic(
     *,
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
+    variant: NetworkVariant = "paper",
 ) -> ValueOperator:
     """Wrap the critic network for a TorchRL multi-agent group.
 
@@ -586,7 +658,7 @@ def make_critic(
         ``(group, "mask")`` and writing ``(group, "state_action_value")`` with shape
         ``(..., 1)``.
     """
-    net = make_critic_net(kind, generator=generator, device=device)
+    net = make_critic_net(kind, generator=generator, device=device, variant=variant)
     return ValueOperator(
         net,
         in_keys=_group_keys(group, ("observation", "action", "mask")),

@@ -59,8 +59,12 @@ def load_policy(path: str | Path, expected_kind: str | None = None) -> Policy:
     """
     ckpt = load_checkpoint(path, expected_kind=expected_kind)
     kind = ckpt["kind"]
+    variant = str(ckpt.get("network") or (ckpt.get("preset") or {}).get("network") or "paper")
     with torch.random.fork_rng(devices=[]):  # the random initial weights are overwritten
-        net = make_actor_net(kind)
+        try:
+            net = make_actor_net(kind, variant=variant)
+        except ValueError as exc:
+            raise CheckpointError(f"{path}: {exc}") from exc
     k_net = net.spec.grid_size
     try:
         net.load_state_dict(ckpt["actor"])

@@ -1,5 +1,10 @@
 """Training hyper-parameter presets.
 
+``released``: the authors' released trainer (``docs/training.md`` lists each difference and its
+field): constant learning rates 1e-3 / 1e-2, one update per collected frame after a warm-up,
+one scalar exploration noise N(0, 0.1^2) per environment and step for the edge stage and none for
+the cloud, the raw edge action executed on every other step, one continuing simulation per
+environment cut into chunks (3000 steps edge, 1000 cloud), the released reward form and networks.
 ``paper``: the values of the paper's table (Section VII): Adam, lr actor 1e-3 and critic 0.05,
 both decayed linearly to 0, gamma 0.8, minibatch 48, soft update tau 0.01 ("0.99": the target
 keeps 99 % per update), 0.5 updates per frame. ``stable``: learning rates that Adam can use
@@ -14,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 from mivecc_env.config import MiVeCCConfig
 
@@ -24,6 +29,7 @@ __all__ = [
     "TrainPreset",
     "add_train_arguments",
     "get_preset",
+    "preset_with",
     "thread_settings",
 ]
 
@@ -56,7 +62,26 @@ class TrainPreset:
         buffer_size: Replay capacity [transitions] (capped by ``buffer_memory_mb``).
         buffer_memory_mb: Memory cap of the replay storage [MiB].
         max_grad_norm: Gradient clipping (``None``: no clipping).
-        episode_steps: Steps per episode (env ``max_steps``); 3000 = 300 s at 0.1 s.
+        episode_steps: Steps per episode (env ``max_steps``); 3000 = 300 s at 0.1 s. With
+            ``continuous`` the length of a chunk.
+        lr_schedule: ``"linear"``: both learning rates decay linearly to 0 over the run;
+            ``"constant"``: they stay (the released trainer: its printed decay never reaches
+            the optimiser).
+        exploration: ``"per_column"``: independent Gaussian noise per action column, sigma
+            annealed from ``sigma_init`` to ``sigma_end``; ``"scalar"``: one Gaussian number
+            per environment and step added to all its actions (released edge stage, sigma
+            annealed the same way); ``"none"``: no noise (released cloud stage).
+        raw_edge_period: Stage I: on every ``n``-th step the edge action is executed
+            unmodified (no veto, no max; released: 2, every other step); 0: never.
+        continuous: One continuing simulation per environment, episodes are chunks of
+            ``episode_steps`` (truncation without reset); ``False``: every episode starts
+            from an empty network.
+        network: Network variant, ``"paper"`` (the paper's table) or ``"released"``
+            (:class:`mivecc_agents.networks.NetworkSpec`).
+        env_overrides: Env config fields the preset sets for training, as ``(name, value)``
+            pairs (reward form, training-time edge selection); explicit ``--set`` wins.
+        cloud_changes: Fields that differ in stage II, as ``(name, value)`` pairs
+            (:meth:`for_stage`).
     """
 
     name: str
@@ -77,6 +102,20 @@ class TrainPreset:
     buffer_memory_mb: int = 1024
     max_grad_norm: float | None = None
     episode_steps: int = 3000
+    lr_schedule: Literal["linear", "constant"] = "linear"
+    exploration: Literal["per_column", "scalar", "none"] = "per_column"
+    raw_edge_period: int = 0
+    continuous: bool = False
+    network: Literal["paper", "released"] = "paper"
+    env_overrides: tuple[tuple[str, Any], ...] = ()
+    cloud_changes: tuple[tuple[str, Any], ...] = ()
+
+    def for_stage(self, stage: str) -> TrainPreset:
+        """The preset as used in a stage (``cloud_changes`` applied in stage II; the raw edge
+        action only exists in stage I)."""
+        if stage == "cloud":
+            return self.replace(**dict(self.cloud_changes), raw_edge_period=0, cloud_changes=())
+        return self
 
     def replace(self, **changes: Any) -> TrainPreset:
         """A copy with some fields changed."""
@@ -96,6 +135,39 @@ PRESETS: dict[str, TrainPreset] = {
         max_grad_norm=10.0,
         batch_size=192,
         updates_per_frame=0.125,
+    ),
+    "released": TrainPreset(
+        name="released",
+        lr_actor=1e-3,
+        lr_critic=1e-2,
+        lr_schedule="constant",
+        gamma=0.8,
+        batch_size=48,
+        tau=0.01,
+        exploration="scalar",
+        sigma_init=0.1,
+        sigma_end=0.1,
+        raw_edge_period=2,
+        continuous=True,
+        network="released",
+        updates_per_frame=1.0,
+        envs=6,
+        warmup_frames=5000,
+        buffer_size=100_000,
+        episode_steps=3000,
+        env_overrides=(
+            ("edge_selection", "lowest_sv"),  # released training picks the lowest SV
+            ("reward_sv_weight", 1.0),
+            ("edge_reward_scope", "decisions"),
+            ("collision_penalty", 0.0),
+        ),
+        cloud_changes=(
+            ("exploration", "none"),
+            ("warmup_frames", 500),
+            ("buffer_size", 50_000),
+            ("episode_steps", 1000),
+            ("envs", 3),
+        ),
     ),
 }
 
@@ -117,12 +189,71 @@ def get_preset(name: str | TrainPreset) -> TrainPreset:
         raise ValueError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)}") from None
 
 
+def preset_with(preset: str | TrainPreset, items: dict[str, Any]) -> TrainPreset:
+    """A preset with some fields changed from ``--preset-set KEY=VALUE`` items.
+
+    Values are converted to the field's type (int, float, bool, str; ``none`` for an
+    optional field); tuple fields (``env_overrides``, ``cloud_changes``) cannot be set here
+    (use ``--set`` for env fields).
+
+    Raises:
+        ValueError: an unknown or unsettable field, or a value of the wrong type (the
+            message names the field).
+    """
+    p = get_preset(preset)
+    fields = {f.name: f for f in dataclasses.fields(TrainPreset)}
+    changes: dict[str, Any] = {}
+    for key, raw in items.items():
+        if key not in fields or key in ("name", "env_overrides", "cloud_changes"):
+            settable = sorted(k for k in fields if k not in ("name", "env_overrides",
+                                                              "cloud_changes"))
+            raise ValueError(f"--preset-set: unknown field {key!r}; settable: {settable}")
+        current = getattr(p, key)
+        try:
+            changes[key] = _convert(raw, current, str(fields[key].type))
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"--preset-set {key}: cannot use {raw!r} (a {fields[key].type} field)"
+            ) from None
+    # an explicit change also holds in stage II
+    changes["cloud_changes"] = tuple((k, v) for k, v in p.cloud_changes if k not in changes)
+    return p.replace(**changes)
+
+
+def _convert(raw: Any, current: Any, type_name: str) -> Any:
+    text = str(raw).strip()
+    if text.lower() == "none" and "None" in type_name:
+        return None
+    if isinstance(current, bool) or type_name == "bool":
+        if text.lower() in ("true", "1", "yes"):
+            return True
+        if text.lower() in ("false", "0", "no"):
+            return False
+        raise ValueError(text)
+    if type_name.startswith("int"):
+        return int(text)
+    if type_name.startswith("float"):
+        value = float(text)
+        if value != value or value in (float("inf"), float("-inf")):
+            raise ValueError(text)
+        return value
+    if type_name.startswith("Literal"):
+        allowed = [a.strip().strip("'\"") for a in type_name[8:-1].split(",")]
+        if text not in allowed:
+            raise ValueError(text)
+    return text
+
+
 def add_train_arguments(parser: Any) -> None:
     """Options of ``mivecc train`` (kept here so that ``mivecc --help`` imports no torch)."""
     parser.add_argument("--stage", choices=("edge", "cloud"), default="edge",
                         help="edge: stage I (scheme EE); cloud: stage II (scheme EEC, edge frozen)")
     parser.add_argument("--preset", choices=sorted(PRESETS), default=DEFAULT_PRESET,
                         help=f"hyper-parameters (default {DEFAULT_PRESET})")
+    parser.add_argument("--preset-set", dest="preset_items", metavar="KEY=VALUE", nargs="+",
+                        action="extend", default=[],
+                        help="change preset fields, e.g. --preset-set updates_per_frame=0.25 "
+                        "batch_size=192 (docs/training.md lists them)")
     parser.add_argument("--frames", type=int, default=None,
                         help="total env steps (default: 50 episodes per density)")
     parser.add_argument("--episode-steps", type=int, default=None,

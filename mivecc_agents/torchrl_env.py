@@ -70,6 +70,14 @@ class MiVeCCTorchEnv(EnvBase):
         summary_keys: episode-summary keys to put under ``(g, "info")`` (default all of
             :data:`mivecc_env.metrics.SUMMARY_KEYS`; ``()`` for none).
         seed: if given, :meth:`set_seed` is called with it.
+        continuous: one continuing simulation per environment, episodes are chunks of
+            ``max_steps`` steps (the released trainer): an environment whose chunk ended is
+            not reset by ``"_reset"``, it starts its next chunk in place
+            (:meth:`BatchedMiVeCCEnv.start_chunk`: truncation without reset). A reset without
+            ``"_reset"`` (the collector's first) restarts every environment.
+        raw_edge_period: ``n > 0``: on every ``n``-th step (steps ``n-1, 2n-1, ...`` of this
+            env, counted over its whole life) the edge actions are executed unmodified (no
+            veto, no max; the released trainer uses ``n = 2``); ``0`` (default): never.
         config: a :class:`~mivecc_env.config.MiVeCCConfig`; ``**overrides`` replace fields
             (``scheme``, ``rows``, ``max_steps``...).
         device: torch device of the tensors (CPU only is tested).
@@ -87,6 +95,8 @@ class MiVeCCTorchEnv(EnvBase):
         groups: Sequence[str] = GROUPS,
         summary_keys: Sequence[str] = SUMMARY_KEYS,
         seed: int | None = None,
+        continuous: bool = False,
+        raw_edge_period: int = 0,
         config: Any = None,
         device: Any = "cpu",
         **overrides: Any,
@@ -99,8 +109,15 @@ class MiVeCCTorchEnv(EnvBase):
             raise ValueError(f"summary_keys: unknown {bad}; known: {list(SUMMARY_KEYS)}")
         if batch_size is None:
             batch_size = len(densities) if densities is not None else 1
+        if isinstance(raw_edge_period, bool) or int(raw_edge_period) != raw_edge_period or (
+            raw_edge_period < 0
+        ):
+            raise ValueError(f"raw_edge_period: must be an integer >= 0, got {raw_edge_period!r}")
+        self.raw_edge_period = int(raw_edge_period)
+        self._steps_taken = 0
         self._batched = BatchedMiVeCCEnv(
-            config, int(batch_size), densities=densities, observe=set(groups), **overrides
+            config, int(batch_size), densities=densities, observe=set(groups),
+            continuous=continuous, **overrides,
         )
         b = self._batched.batch_size
         super().__init__(device=device, batch_size=torch.Size([b]))
@@ -167,10 +184,13 @@ class MiVeCCTorchEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         mask = _reset_mask(tensordict, self.groups, self.batch_size[0])
-        if mask is None or mask.all():
-            step = self._batched.reset(seed=kwargs.get("seed"))
+        env = self._batched
+        if env.continuous and mask is not None and env.started and kwargs.get("seed") is None:
+            step = env.start_chunk(mask)  # the next chunk of one continuing simulation
+        elif mask is None or mask.all():
+            step = env.reset(seed=kwargs.get("seed"))
         else:
-            step = self._batched.reset_at(mask)
+            step = env.reset_at(mask)
         return self._pack(step, with_reward=False)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -179,9 +199,15 @@ class MiVeCCTorchEnv(EnvBase):
             edge = tensordict.get(("edge", "action")).detach().cpu().numpy()
         if "cloud" in self.groups:
             cloud = tensordict.get(("cloud", "action")).detach().cpu().numpy()[:, 0]
+        n = self.raw_edge_period
+        raw = None
+        if n and edge is not None:
+            raw = np.full(self.batch_size[0], self._steps_taken % n == n - 1)
+        self._steps_taken += 1
         step = self._batched.step(
             None if edge is None else edge.astype(np.float64, copy=False),
             None if cloud is None else cloud.astype(np.float64, copy=False),
+            raw_edge=raw,
         )
         return self._pack(step, with_reward=True)
 

@@ -23,7 +23,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from mivecc_agents.presets import get_preset
+from mivecc_agents.presets import preset_with
 from mivecc_env.config import ALIASES, ConfigError, from_overrides
 
 __all__ = ["check_network_sizes", "check_train_args", "quiet_train_output"]
@@ -71,7 +71,11 @@ def check_train_args(args: argparse.Namespace) -> None:
     """
     from mivecc_agents.cli import parse_set_items
 
-    preset = get_preset(args.preset)
+    try:
+        preset = preset_with(args.preset, parse_set_items(getattr(args, "preset_items", [])))
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    preset = preset.for_stage(args.stage)
     n_dens = len(args.density)
     per_batch = preset.frames_per_batch * n_dens
     _int_at_least("--frames", args.frames, per_batch,

@@ -36,6 +36,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 
 from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mivecc_agents.exploration import make_exploration
 from mivecc_agents.learner import DDPGLearner, UpdateStats, make_loss
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
@@ -176,13 +177,18 @@ def make_policy(
 def load_frozen_edge_actor(path: str | Path) -> TensorDictModule:
     """Load the stage-I edge actor, frozen (no grad, eval)."""
     ckpt = load_checkpoint(path, expected_kind="edge")
-    actor = make_actor("edge", "edge")
+    actor = make_actor("edge", "edge", variant=network_variant(ckpt))
     actor.module.load_state_dict(ckpt["actor"])
     freeze(actor)
     return actor
 
 
 # --------------------------------------------------------------------------------------------
+def network_variant(ckpt: dict[str, Any]) -> str:
+    """The network variant a checkpoint was trained with (``"paper"`` before variants)."""
+    return str(ckpt.get("network") or (ckpt.get("preset") or {}).get("network") or "paper")
+
+
 def _buffer_keys(group: str) -> list:
     return [
         (group, "observation"),
@@ -387,6 +393,7 @@ def env_factory(
     scheme: str,
     envs_per_density: int = 1,
     seed: int | None = None,
+    env_options: dict[str, Any] | None = None,
 ) -> tuple[Callable[[], Any], list[int]]:
     """The collector's env factory and the density index of each of its environments.
 
@@ -399,12 +406,20 @@ def env_factory(
         scheme: ``"EE"`` or ``"EEC"``.
         envs_per_density: Environments per density (native backend).
         seed: Native backend: seed of the env (environment ``b`` gets ``seed + b``).
+        env_options: Native backend: ``continuous`` / ``raw_edge_period`` of
+            :class:`~mivecc_agents.torchrl_env.MiVeCCTorchEnv` (the pettingzoo backend has
+            neither: asking for them there is a ``TrainingError``).
 
     Returns:
         ``(factory, env_density)`` with ``env_density[b]`` the index into ``densities`` of
         environment ``b`` (batch dim 0 of the collected data).
     """
+    options = {k: v for k, v in (env_options or {}).items() if v}
     if backend == "pettingzoo":
+        if options:
+            raise TrainingError(
+                f"backend 'pettingzoo' has no {sorted(options)}: use the native backend"
+            )
         return partial(_make_batched_env, list(densities), overrides, scheme), list(
             range(len(densities))
         )
@@ -414,7 +429,7 @@ def env_factory(
         raise TrainingError(f"envs_per_density: must be >= 1, got {envs_per_density}")
     env_density = [i for i in range(len(densities)) for _ in range(envs_per_density)]
     per_env = [float(densities[i]) for i in env_density]
-    return partial(make_native_env, per_env, overrides, scheme, seed), env_density
+    return partial(make_native_env, per_env, overrides, scheme, seed, **options), env_density
 
 
 #: Groups the native env exposes in each stage (stage I needs no cloud graph).
@@ -424,13 +439,18 @@ _LOG_KEYS = ("avg_travel_velocity_mps", "collisions", "throughput")
 
 
 def make_native_env(
-    densities: Sequence[float], overrides: dict[str, Any], scheme: str, seed: int | None = None
+    densities: Sequence[float],
+    overrides: dict[str, Any],
+    scheme: str,
+    seed: int | None = None,
+    **options: Any,
 ):
     """Native batched TorchRL env (one environment per entry of ``densities``) + RewardSum.
 
     It has the keys of :func:`make_env` that training reads: ``(g, "mask")`` at the root and
     under ``next``, and the ``(g, "info")`` summary keys of the log. Scheme ``EE`` exposes only
-    the ``edge`` group (stage I acts on no cloud graph, so none is built).
+    the ``edge`` group (stage I acts on no cloud graph, so none is built). ``options``:
+    ``continuous``, ``raw_edge_period`` of the env.
     """
     from torchrl.envs import RewardSum, TransformedEnv
 
@@ -442,6 +462,7 @@ def make_native_env(
         groups=_STAGE_GROUPS.get(scheme, GROUPS),
         summary_keys=_LOG_KEYS,
         seed=seed,
+        **options,
         **overrides,
     )
     groups = [g for g in GROUPS if g in base.group_map]
@@ -530,12 +551,11 @@ def _train(
         Path of the checkpoint written at the end.
     """
     from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
-    from torchrl.modules import AdditiveGaussianModule
     from tqdm.auto import tqdm
 
     if stage not in STAGES:
         raise TrainingError(f"unknown stage {stage!r}; expected 'edge' or 'cloud'")
-    p = get_preset(preset)
+    p = get_preset(preset).for_stage(stage)
     if buffer_size is not None:
         p = p.replace(buffer_size=int(buffer_size))
     if episode_steps is not None:
@@ -546,6 +566,7 @@ def _train(
     scheme = STAGES[stage]["scheme"]
     dens = _densities(densities)
     overrides = {
+        **dict(p.env_overrides),
         **(config_overrides or {}),
         "rows": rows,
         "cols": cols,
@@ -553,7 +574,10 @@ def _train(
     }
     if p.envs_per_density is None:
         p = p.replace(envs_per_density=max(1, p.envs // len(dens)))
-    env_fn, env_density = env_factory(backend, dens, overrides, scheme, p.envs_per_density, seed)
+    env_options = _env_options(p)
+    env_fn, env_density = env_factory(
+        backend, dens, overrides, scheme, p.envs_per_density, seed, env_options
+    )
     n_envs = len(env_density)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -561,8 +585,8 @@ def _train(
     torch.manual_seed(seed)
 
     # --- networks, learner ------------------------------------------------------------------
-    actor = make_actor(group, group)
-    critic = make_critic(group, group)
+    actor = make_actor(group, group, variant=p.network)
+    critic = make_critic(group, group, variant=p.network)
     start = _load_start(resume, stage, group) if resume is not None else None
     warm = start is not None and "loss" not in start
     if warm:
@@ -601,14 +625,15 @@ def _train(
     # --- exploration policy, env, collector ----------------------------------------------
     probe = env_fn()
     action_spec = probe.full_action_spec[(group, "action")].clone()
-    noise = AdditiveGaussianModule(
-        spec=action_spec,
-        sigma_init=p.sigma_init,
-        sigma_end=p.sigma_end,
-        annealing_num_steps=max(1, int(p.sigma_anneal_fraction * total_frames)),
-        action_key=(group, "action"),
+    noise = make_exploration(
+        p.exploration,
+        action_spec,
+        p.sigma_init,
+        p.sigma_end,
+        p.sigma_anneal_fraction * total_frames,
+        (group, "action"),
     )
-    if state["frames"]:
+    if state["frames"] and noise is not None:
         noise.step(state["frames"])
     policy = make_policy(stage, actor, noise, frozen_edge, groups=env_groups(probe))
     remaining = max(0, total_frames - state["frames"])
@@ -663,6 +688,7 @@ def _train(
         "stage": stage,
         "kind": group,
         "grid_size": int(actor.module.spec.grid_size),
+        "network": p.network,
         "preset": p.to_dict(),
         "config": _config_dict(overrides, scheme, dens),
         "extra": {
@@ -707,7 +733,8 @@ def _train(
         try:
             if remaining > 0 and not stop.requested:
                 collector = _make_collector(
-                    _worker_env_fns(backend, dens, overrides, scheme, p, seed, state, workers),
+                    _worker_env_fns(backend, dens, overrides, scheme, p, seed, state, workers,
+                                    env_options),
                     policy, fpb, remaining, workers, ray_address,
                 )
                 if backend == "pettingzoo":  # the native envs are seeded by their factories
@@ -719,7 +746,8 @@ def _train(
                     state["frames"] += n
                     state["iteration"] += 1
                     buffer.extend(data.select(*keys).reshape(-1))
-                    noise.step(n)
+                    if noise is not None:
+                        noise.step(n)
                     stats = UpdateStats()
                     if len(buffer) >= max(p.warmup_frames, p.batch_size):
                         n_upd = max(1, round(p.updates_per_frame * n))
@@ -772,6 +800,11 @@ def _train(
     return path
 
 
+def _env_options(p: TrainPreset) -> dict[str, Any]:
+    """The native env's options a preset asks for (continuous chunks, raw edge steps)."""
+    return {"continuous": p.continuous, "raw_edge_period": p.raw_edge_period}
+
+
 def _tensorboard_writer(out_dir: Path) -> Any:
     """A TensorBoard ``SummaryWriter`` logging to ``out_dir/tb`` if tensorboard is installed."""
     try:
@@ -790,6 +823,7 @@ def _worker_env_fns(
     seed: int,
     state: dict[str, int],
     workers: int,
+    env_options: dict[str, Any] | None = None,
 ) -> list[Callable]:
     """One env factory per collector worker; native envs get distinct seeds per worker (and
     per resumed run: the frame count is added)."""
@@ -797,7 +831,8 @@ def _worker_env_fns(
     n_envs = p.envs_per_density * len(dens)
     base = seed + state["frames"]
     return [
-        env_factory(backend, dens, overrides, scheme, p.envs_per_density, base + w * n_envs)[0]
+        env_factory(backend, dens, overrides, scheme, p.envs_per_density, base + w * n_envs,
+                    env_options)[0]
         for w in range(n)
     ]
 
@@ -865,7 +900,7 @@ def _metrics(
         "q_mean": stats.q_mean,
         "lr_actor": lr[0],
         "lr_critic": lr[1],
-        "sigma": float(noise.sigma),
+        "sigma": float(noise.sigma) if noise is not None else 0.0,
         "updates": stats.n_updates,
         "fps_collect": frames_in_batch / max(collect_s, 1e-9),
         "fps_optim": (
@@ -914,7 +949,8 @@ def train_from_args(args) -> int:
     import sys
 
     from mivecc_agents.cli import parse_set_items
-    from mivecc_agents.presets import thread_settings
+    from mivecc_agents.presets import preset_with, thread_settings
+    from mivecc_env.config import ConfigError
 
     threads = thread_settings(args.stage, args.threads)["OMP_NUM_THREADS"]
     if args.threads is None:  # an OMP_NUM_THREADS of the caller wins over the default
@@ -922,8 +958,13 @@ def train_from_args(args) -> int:
     torch.set_num_threads(int(threads))
     default = 1 if args.stage == "edge" else 3
     try:
+        preset = preset_with(args.preset, parse_set_items(args.preset_items))
+    except (ValueError, ConfigError) as exc:
+        print(f"mivecc train: error: {exc}", file=sys.stderr)
+        return 2
+    try:
         path = train(
-            args.stage, args.preset, args.frames,
+            args.stage, preset, args.frames,
             rows=args.rows or default, cols=args.cols or default, densities=args.density,
             seed=args.seed, out_dir=args.out, resume=args.resume, workers=args.workers,
             ray_address=args.ray_address, progress=not args.no_progress,

@@ -17,12 +17,17 @@ Semantics (details in ``docs/batched.md``):
   while the others continue untouched; each environment has its own episode clock.
 * An environment is truncated once its clock reaches ``max_steps``; it keeps running (and stays
   truncated) until it is reset with :meth:`reset_at`. It is never terminated.
+* Continuous runs (``continuous=True``, the released trainer's one never-reset simulation):
+  episodes are chunks of ``max_steps`` steps; :meth:`start_chunk` begins the next chunk of an
+  environment without touching its traffic (truncation without reset), and the summary's
+  per-period keys cover the current chunk (``metrics.batch_summary(since=...)``).
 * Demand: ``densities`` gives each environment its own arrival rate [veh/lane/h].
 * Observations are built only for the graphs in ``observe``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -107,6 +112,9 @@ class BatchedMiVeCCEnv:
         signal_agents: add the signal agents' arrays (``control="signalized"`` only; see
             :mod:`mivecc_env.signal_agents`).
         signal_reward: their reward, ``"queue"`` or ``"pressure"``.
+        continuous: episodes are chunks of ``max_steps`` steps of one continuing simulation
+            (:meth:`start_chunk`); ``False`` (default): truncation at ``max_steps`` since the
+            environment's reset.
 
     Raises:
         ConfigError: a bad config field, ``batch_size``, ``densities``, ``observe`` or
@@ -122,6 +130,7 @@ class BatchedMiVeCCEnv:
         observe: Sequence[str] | set[str] | frozenset[str] | None = None,
         signal_agents: bool = False,
         signal_reward: str = "queue",
+        continuous: bool = False,
         **config_overrides: Any,
     ) -> None:
         if config is not None and not isinstance(config, MiVeCCConfig):
@@ -155,6 +164,9 @@ class BatchedMiVeCCEnv:
         self._v = np.zeros(0)
         self._started = False
         self._last: BatchStep | None = None
+        self.continuous = bool(continuous)
+        self._chunk_start = np.zeros(self.batch_size, dtype=np.int64)  # env step of its start
+        self._chunk_counters = metrics.counters(self.sim)
 
     # ------------------------------------------------------------------------------------
     @property
@@ -166,15 +178,53 @@ class BatchedMiVeCCEnv:
 
     @property
     def episode_steps(self) -> NDArray[np.int64]:
-        """(B,) steps of each environment since its own last reset."""
-        return self.sim.env_steps
+        """(B,) steps of each environment since its own last reset (continuous: since the
+        start of its current chunk)."""
+        return self.sim.env_steps - self._chunk_start
+
+    @property
+    def started(self) -> bool:
+        """Whether :meth:`reset` has been called."""
+        return self._started
 
     def summary(self) -> dict[str, FloatArray]:
         """Episode metrics so far: ``metrics.SUMMARY_KEYS`` -> (B,) float64 arrays.
 
-        Read it before :meth:`reset_at` to keep the summary of an ended episode.
+        Read it before :meth:`reset_at` to keep the summary of an ended episode. Continuous
+        runs: the per-period keys cover the current chunk (see the module docstring).
         """
-        return metrics.batch_summary(self.sim)
+        return metrics.batch_summary(self.sim, self._chunk_counters if self.continuous else None)
+
+    def start_chunk(self, env_index: ArrayLike) -> BatchStep:
+        """Continuous runs: begin the next chunk (episode) of some environments in place.
+
+        Their vehicles, queues, arrival streams and clocks go on untouched; only the chunk's
+        step count and the summary's per-period counters restart.
+
+        Args:
+            env_index: indices of the environments, or a (B,) bool mask.
+
+        Returns:
+            The current step of the batch with those environments no longer truncated.
+
+        Raises:
+            RuntimeError: not a continuous env, or ``reset`` not called.
+        """
+        if not self.continuous:
+            raise RuntimeError("start_chunk: only for continuous=True (use reset_at)")
+        if not self._started or self._last is None:
+            raise RuntimeError("start_chunk: call reset() first")
+        envs = self._env_indices(env_index)
+        self._chunk_start[envs] = self.sim.env_steps[envs]
+        now = metrics.counters(self.sim)
+        for name, value in now.items():
+            self._chunk_counters[name][envs] = value[envs]
+        steps = self.episode_steps
+        last = self._last
+        self._last = dataclasses.replace(
+            last, truncated=steps >= self.config.max_steps, episode_steps=steps
+        )
+        return self._last
 
     # ------------------------------------------------------------------------------------
     def reset(self, seed: int | Sequence[int] | None = None) -> BatchStep:
@@ -193,6 +243,8 @@ class BatchedMiVeCCEnv:
                 seeds = self._seed_list(seed, self.batch_size, "seed")
             self._seed_rngs = [np.random.default_rng(s) for s in seeds]
         self.sim.reset([self._next_sim_seed(b) for b in envs.tolist()])
+        self._chunk_start[:] = 0
+        self._chunk_counters = metrics.counters(self.sim)
         self._started = True
         return self._observe_and_pack(None)
 
@@ -221,6 +273,9 @@ class BatchedMiVeCCEnv:
                 self._seed_rngs[b] = np.random.default_rng(s)
         last = self._last
         self.sim.reset_at(envs, [self._next_sim_seed(b) for b in envs.tolist()])
+        self._chunk_start[envs] = 0
+        for name, value in metrics.counters(self.sim).items():
+            self._chunk_counters[name][envs] = value[envs]
         out = self._observe_and_pack(None)
         if last is not None:
             # The environments that go on keep the rewards of their last step.
@@ -238,7 +293,7 @@ class BatchedMiVeCCEnv:
 
     def step(
         self, edge_action: ArrayLike | None = None, cloud_action: ArrayLike | None = None,
-        signal_action: ArrayLike | None = None,
+        signal_action: ArrayLike | None = None, raw_edge: ArrayLike | None = None,
     ) -> BatchStep:
         """Apply the coordinators' accelerations and advance every environment one step.
 
@@ -251,6 +306,10 @@ class BatchedMiVeCCEnv:
             signal_action: (B, n_int) integer phase each signal agent wants green (0
                 east-west, 1 north-south), -1 where ``signal_controller`` decides; ``None``:
                 it decides everywhere. Needs ``signal_agents=True``.
+            raw_edge: (B,) bool or one bool for all: in those environments the edge action
+                replaces the rule's action of its decision vehicles unmodified (no SV gate, no
+                veto, no max; the released trainer's exploration on every other step, see
+                ``end_node.fuse``); ``None``: the normal fusion everywhere.
 
         Raises:
             RuntimeError: ``reset`` has not been called.
@@ -268,13 +327,19 @@ class BatchedMiVeCCEnv:
                 raise ValueError("signal_action: needs signal_agents=True")
             signal = signal_agents_mod.check_action(signal_action,
                                                     (self.batch_size, self.n_edge))
-        return self.step_commands(edge, cloud, signal)
+        raw = None
+        if raw_edge is not None:
+            raw = np.broadcast_to(np.asarray(raw_edge), (self.batch_size,))
+            if raw.dtype != bool:
+                raise ValueError(f"raw_edge: expected bools, got dtype {raw.dtype}")
+        return self.step_commands(edge, cloud, signal, raw)
 
     # ------------------------------------------------------------------------------------
     # for adapters
     def step_commands(
         self, edge_action: FloatArray | None, cloud_action: FloatArray | None,
         signal_action: NDArray[np.int64] | None = None,
+        raw_edge: BoolArray | None = None,
     ) -> BatchStep:
         """:meth:`step` without validation; NaN in an action means "no action" for that column.
 
@@ -294,7 +359,7 @@ class BatchedMiVeCCEnv:
             if self._cloud is None:
                 raise RuntimeError("step: cloud_action given but 'cloud' is not observed")
             cloud_cmd = self._commands(self._cloud, cloud_action[:, None, :])
-        events = sim.step(edge_cmd, cloud_cmd, signal_phase=signal_action)
+        events = sim.step(edge_cmd, cloud_cmd, signal_phase=signal_action, raw_edge=raw_edge)
         return self._observe_and_pack(events)
 
     def _commands(self, graphs: StateGraphs, action: FloatArray) -> FloatArray:
@@ -326,7 +391,7 @@ class BatchedMiVeCCEnv:
             di = density_indicator(view, c.di_n)
             self._cloud = cloud_graphs(sim.network, view, di, v, a, b, c, self._cloud_pop)
         edge_terms, cloud_terms = self._reward_terms(events)
-        steps = sim.env_steps
+        steps = self.episode_steps
         edge, cloud = self._edge, self._cloud
         signal_obs = signal_reward = signal_terms = None
         if self.signal_agents:
@@ -374,8 +439,11 @@ class BatchedMiVeCCEnv:
             vi = self._edge.view_index
             # Column -1 (padding) picks the appended 0, so padded columns add nothing.
             sv_sum = np.append(sim.safety.sv, 0.0)[vi].sum(axis=2)
-            n_dec = (vi >= 0).sum(axis=2)
-            edge["reward_sv"] = c.reward_sv_weight * (sv_sum / np.maximum(n_dec, 1))
+            n_dec = np.maximum((vi >= 0).sum(axis=2), 1)
+            edge["reward_sv"] = c.reward_sv_weight * (sv_sum / n_dec)
+            if c.edge_reward_scope == "decisions":  # released trainer: the decision vehicles
+                dv = np.append(self._v - c.reward_v_ref_mps, 0.0)
+                edge["reward_velocity"] = dv[vi].sum(axis=2) / n_dec
         cloud = {
             "reward_sv": np.zeros(b),
             "reward_velocity": env_vel / np.maximum(env_count, 1),

@@ -30,6 +30,7 @@ SignalController = Literal["fixed-time", "actuated", "max-pressure"]
 EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
 CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
+EdgeRewardScope = Literal["area", "decisions"]
 Model = Literal["paper", "released"]
 AccelRecord = Literal["applied", "commanded"]
 SameLaneForm = Literal["project", "released"]
@@ -364,6 +365,11 @@ class MiVeCCConfig:
     )
     collision_penalty: float = _num(
         10.0, 0.0, 1e6, "reward penalty per vehicle removed by collision in a node's scope"
+    )
+    edge_reward_scope: EdgeRewardScope = _choice(
+        "area", ("area", "decisions"),
+        "the edge reward's velocity term mean(v - v_ref) over every vehicle of the node's "
+        "control area (default) or over its decision vehicles only (released trainer)",
     )
 
     # ------------------------------------------------------------------------------------

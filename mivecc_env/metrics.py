@@ -73,36 +73,61 @@ def upper_bound_velocity_mps(config: MiVeCCConfig) -> float:
     return float(np.mean(lengths / min_travel_time_s(config, lengths)))
 
 
-def batch_summary(sim: Simulator) -> dict[str, np.ndarray]:
+#: Simulator counters behind the summary's per-period keys (:func:`counters`).
+COUNTERS: tuple[str, ...] = (
+    "exited", "collision_events", "collided", "sum_travel_velocity",
+    "sum_travel_velocity_no_wait", "sum_trip_time", "sum_wait_time", "sum_speed_samples",
+    "vehicle_steps", "env_steps",
+)
+
+
+def counters(sim: Simulator) -> dict[str, np.ndarray]:
+    """A copy of the simulator's cumulative counters (for ``batch_summary(since=...)``)."""
+    return {name: np.array(getattr(sim, name), copy=True) for name in COUNTERS}
+
+
+def batch_summary(
+    sim: Simulator, since: dict[str, np.ndarray] | None = None
+) -> dict[str, np.ndarray]:
     """Metrics of every environment of a simulator since its own last reset.
+
+    Args:
+        sim: The simulator.
+        since: :func:`counters` taken earlier: the trip, speed, throughput, collision and time
+            keys then cover only the steps since (a training chunk of a continuous run); the
+            backlog, vehicle counts, released-style velocity and near-miss keys still cover
+            the whole episode.
 
     Returns:
         ``SUMMARY_KEYS`` -> (B,) float64 arrays (environment ``b`` at index ``b``).
     """
-    exited = sim.exited.astype(np.float64)
-    has = sim.exited > 0
+    now = {name: getattr(sim, name) for name in COUNTERS}
+    if since is not None:
+        now = {name: now[name] - since[name] for name in COUNTERS}
+    exited = now["exited"].astype(np.float64)
+    has = now["exited"] > 0
     n = np.maximum(exited, 1.0)
-    sim_time = sim.env_time_s
+    sim_time = now["env_steps"] * sim.config.dt_s
 
     def per_exit(total: np.ndarray) -> np.ndarray:
         return np.where(has, total / n, 0.0)
 
     return {
-        "avg_travel_velocity_mps": per_exit(sim.sum_travel_velocity),
-        "avg_travel_velocity_no_wait_mps": per_exit(sim.sum_travel_velocity_no_wait),
+        "avg_travel_velocity_mps": per_exit(now["sum_travel_velocity"]),
+        "avg_travel_velocity_no_wait_mps": per_exit(now["sum_travel_velocity_no_wait"]),
         "upper_bound_mps": np.full(sim.batch_size, upper_bound_velocity_mps(sim.config)),
-        "mean_speed_mps": sim.sum_speed_samples / np.maximum(sim.vehicle_steps, 1),
+        "mean_speed_mps": now["sum_speed_samples"] / np.maximum(now["vehicle_steps"], 1),
         "throughput": exited,
         "throughput_vph": np.where(
             sim_time > 0, exited * 3600.0 / np.where(sim_time > 0, sim_time, 1.0), 0.0
         ),
-        "collisions": sim.collision_events.astype(np.float64),
-        "collided_vehicles": sim.collided.astype(np.float64),
+        "collisions": now["collision_events"].astype(np.float64),
+        "collided_vehicles": now["collided"].astype(np.float64),
         "backlog": sim.queued.astype(np.float64),
         "in_network": sim.in_network.astype(np.float64),
         "arrived": sim.arrived.astype(np.float64),
-        "mean_trip_time_s": per_exit(sim.sum_trip_time),
-        "mean_wait_time_s": per_exit(sim.sum_wait_time),
+        "mean_trip_time_s": per_exit(now["sum_trip_time"]),
+        "mean_wait_time_s": per_exit(now["sum_wait_time"]),
         "sim_time_s": sim_time.astype(np.float64),
         **released_and_near_miss(sim),
     }

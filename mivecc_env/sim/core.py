@@ -320,6 +320,7 @@ class Simulator:
         edge_accel: FloatArray | None = None,
         cloud_accel: FloatArray | None = None,
         signal_phase: IntArray | None = None,
+        raw_edge: NDArray[np.bool_] | None = None,
     ) -> StepEvents:
         """Advance every environment by one time step.
 
@@ -330,6 +331,8 @@ class Simulator:
             signal_phase: (B, n_intersections) phase a signal agent wants green (0 east-west,
                 1 north-south), -1 where the configured controller decides (signalized only;
                 timing enforced by ``sim/signal_control.py``).
+            raw_edge: (B,) bool: in these environments the edge action replaces the rule's
+                action unmodified (``end_node.fuse``; the released trainer's exploration).
 
         Raises:
             ValueError: an action array of another shape than ``(B, capacity)`` (capacity
@@ -352,7 +355,8 @@ class Simulator:
         elif self.controller is not None:  # reservation / optimisation (sim/controllers.py)
             accel = self.controller.accel(self, view, s, v)
         else:
-            accel = self._unsignalized_accel(view, s, v, edge_accel, cloud_accel)
+            raw = None if raw_edge is None else np.asarray(raw_edge, dtype=bool)[view.env]
+            accel = self._unsignalized_accel(view, s, v, edge_accel, cloud_accel, raw)
         s_new, v_new, a_applied = end_node.bounded_motion(
             s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
         )
@@ -387,6 +391,7 @@ class Simulator:
     def _unsignalized_accel(
         self, view: VirtualLaneView, s: FloatArray, v: FloatArray,
         edge_accel: FloatArray | None, cloud_accel: FloatArray | None,
+        raw_edge: NDArray[np.bool_] | None = None,
     ) -> FloatArray:
         c, safety = self.config, self._safety
         a_end = end_node.end_accel(safety.sv, safety.d_front, safety.d_back, c)
@@ -428,10 +433,11 @@ class Simulator:
         for k in range(passes):
             if rule is not None and c.same_lane_rule_form == "released":
                 after = functools.partial(rule, lead_s=lead_s)
-                accel = end_node.fuse(a_end, safety.sv, edge, cloud, c, after_edge=after)
+                accel = end_node.fuse(a_end, safety.sv, edge, cloud, c, after_edge=after,
+                                      raw_edge=raw_edge)
             else:
                 a_rule = a_end if rule is None else rule(a_end, s)
-                accel = end_node.fuse(a_rule, safety.sv, edge, cloud, c)
+                accel = end_node.fuse(a_rule, safety.sv, edge, cloud, c, raw_edge=raw_edge)
             if overrides:
                 accel = sections.control_overrides(accel, ctrl, safety.d_front, c, seen)
             if k + 1 < passes:

@@ -84,11 +84,15 @@ def fuse(
     a_cloud: FloatArray | None,
     config: MiVeCCConfig,
     after_edge: Callable[[FloatArray], FloatArray] | None = None,
+    raw_edge: NDArray[np.bool_] | None = None,
 ) -> FloatArray:
     """Executed acceleration [m/s^2] from end, edge and cloud actions (Algorithm 3).
 
     * Edge (where given and, if ``edge_sv_gate`` is set, where ``SV > edge_sv_gate``):
       ``max(a_edge, a_end)`` when ``a_edge * a_end > 0``, else ``a_end`` (the rule vetoes).
+    * ``raw_edge`` (per vehicle; the released trainer's exploration on every other training
+      step): where true and an edge action is given, ``a_edge`` replaces the rule's action
+      unmodified (no SV gate, no veto, no max).
     * ``after_edge`` (the released code's same-lane rule) then rewrites the result.
     * Cloud (where given): ``(1 - omega) a + omega a_cloud``.
     * Finally clipped to ``[-a_max, a_max]`` (documented; the velocity bounds are applied by the
@@ -102,6 +106,8 @@ def fuse(
         edge = np.where(use, a_edge, 0.0)
         agree = use & (edge * a > 0)
         a = np.where(agree, np.maximum(edge, a), a)
+        if raw_edge is not None:
+            a = np.where(raw_edge & ~np.isnan(a_edge), np.nan_to_num(a_edge), a)
     if after_edge is not None:
         a = after_edge(a)
     if a_cloud is not None:
