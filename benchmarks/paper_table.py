@@ -32,7 +32,10 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-SCHEMES = ("signalized", "E", "EE", "EEC")
+SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
+#: Constant-action ceilings: the scheme run, and the coordinator replaced by a constant +3 m/s^2
+#: (EE+3: every edge action +3; EEC+3: the learned edge and a cloud that always sends +3).
+CEILINGS: dict[str, tuple[str, str]] = {"EE+3": ("EE", "edge"), "EEC+3": ("EEC", "cloud")}
 DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
 
 #: The paper's Table eff_imp_rate (3x3 grid), improvement of the average velocity [%].
@@ -43,26 +46,36 @@ PAPER_3X3: dict[str, dict[int, float]] = {
     "EEC vs E": dict(zip(DENSITIES, (0.37, 1.00, 1.56, 1.96, 2.32, 2.76, 2.96), strict=True)),
     "EEC vs EE": dict(zip(DENSITIES, (0.23, 0.6, 1.03, 1.04, 0.84, 0.83, 0.82), strict=True)),
 }
-COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"))
+COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"),
+               ("EE+3", "E"), ("EEC+3", "EE"))
 
 
-def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None]
+def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None, str]
          ) -> list[dict[str, Any]]:
     """All densities and seeds of one (scheme, grid) as one batch of environments."""
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
     from mivecc_agents.evaluation import evaluate_batch
-    from mivecc_agents.policies import load_policy, pretrained_policies
+    from mivecc_agents.policies import constant_policy, load_policy, pretrained_policies
+    from mivecc_env.config import MiVeCCConfig
 
-    scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path = job
-    policies = pretrained_policies()
+    scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model = job
+    policies = pretrained_policies(model)
     if edge_path:
         policies["edge"] = load_policy(edge_path, expected_kind="edge")
     if cloud_path:
         policies["cloud"] = load_policy(cloud_path, expected_kind="cloud")
-    return evaluate_batch(scheme, rows, cols, densities, steps, seeds, policies=policies,
-                          progress=False, warn=False)
+    run_scheme = scheme
+    if scheme in CEILINGS:
+        run_scheme, kind = CEILINGS[scheme]
+        k = getattr(MiVeCCConfig(), f"k_{kind}")
+        policies[kind] = constant_policy(kind, 3.0, k)
+    out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
+                         progress=False, warn=False, model=model)
+    for row in out:
+        row.update(scheme=scheme, model=model)
+    return out
 
 
 def _read_csv(path: Path) -> list[dict[str, Any]]:
@@ -190,8 +203,8 @@ def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = 
     for s in schemes:
         ds = sorted(d for t, d in mean if t == s)
         ax.errorbar(ds, [mean[(s, d)]["v"] for d in ds], yerr=[mean[(s, d)]["v_sd"] for d in ds],
-                    marker="o", capsize=3, label=f"MiVeCC-{s}" if s != "signalized" else
-                    "signalized (fixed time + IDM)")
+                    marker="o", capsize=3, label=_label(s),
+                    linestyle="--" if s in CEILINGS else "-")
     ds = sorted({d for _, d in mean})
     ax.plot(ds, [mean[(schemes[0], d)]["ub"] for d in ds], "k--", label="upper bound")
     ax.set_xlabel("density [veh/lane/h]")
@@ -208,9 +221,16 @@ def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = 
             m = [float(np.mean(per_d[d])) for d in ds]
             sd = [float(np.std(per_d[d])) for d in ds]
             gx.errorbar(ds, m, yerr=sd, marker="o", capsize=3, color=colours.get(s),
-                        label=f"MiVeCC-{s} (mean ± sd over seeds)")
+                        linestyle="--" if s in CEILINGS else "-",
+                        label=f"{_label(s)} (mean ± sd over seeds)")
             for d in ds:
                 gx.plot([d] * len(per_d[d]), per_d[d], ".", color=colours.get(s), alpha=0.4)
+        if grid == "3x3":  # the paper's Table eff_imp_rate, marked
+            for s, name in (("EE", "EE vs E"), ("EEC", "EEC vs E")):
+                if s in gains:
+                    gx.plot(list(DENSITIES), [PAPER_3X3[name][d] for d in DENSITIES], "x",
+                            markersize=9, mew=2, color=colours.get(s),
+                            label=f"paper: MiVeCC-{s} vs E")
         gx.axhline(0.0, color="k", lw=0.8)
         gx.set_xlabel("density [veh/lane/h]")
         gx.set_ylabel("gain over MiVeCC-E [%]")
@@ -221,8 +241,18 @@ def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = 
     fig.savefig(path, dpi=120)
 
 
+def _label(scheme: str) -> str:
+    """Legend name of a scheme."""
+    if scheme == "signalized":
+        return "signalized (fixed time + IDM)"
+    if scheme in CEILINGS:
+        return f"ceiling {scheme}: {CEILINGS[scheme][1]} always +3 m/s^2"
+    return f"MiVeCC-{scheme}"
+
+
 def _gains_over_e(rows: list[dict[str, Any]], grid: str) -> dict[str, dict[float, list[float]]]:
-    """``scheme -> density -> [gain over E of each seed, %]`` for EE/EEC (same density + seed)."""
+    """``scheme -> density -> [gain over E of each seed, %]`` for EE/EEC and the ceilings (same
+    density + seed)."""
     r, c = (int(x) for x in grid.split("x"))
     mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
     base = {(x["density"], x["seed"]): x["avg_travel_velocity_mps"]
@@ -230,7 +260,7 @@ def _gains_over_e(rows: list[dict[str, Any]], grid: str) -> dict[str, dict[float
     out: dict[str, dict[float, list[float]]] = {}
     for x in mine:
         key = (x["density"], x["seed"])
-        if x["scheme"] in ("EE", "EEC") and key in base:
+        if x["scheme"] in ("EE", "EEC", "EE+3", "EEC+3") and key in base:
             gain = improvement(x["avg_travel_velocity_mps"], base[key])
             out.setdefault(x["scheme"], {}).setdefault(x["density"], []).append(gain)
     return out
@@ -245,6 +275,8 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--edge", default=None, help="edge checkpoint (default: shipped)")
     parser.add_argument("--cloud", default=None, help="cloud checkpoint (default: shipped)")
+    parser.add_argument("--model", choices=("paper", "released"), default="paper",
+                        help="env model; the shipped policies of that model are used")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
     parser.add_argument("--from-csv", type=Path, nargs="+", default=None,
@@ -257,7 +289,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
         r, c = (int(x) for x in grid.split("x"))
         for scheme in args.schemes:
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
-                         args.edge, args.cloud))
+                         args.edge, args.cloud, args.model))
     if args.from_csv:
         rows = [row for path in args.from_csv for row in _read_csv(path)]
     elif args.workers > 1:

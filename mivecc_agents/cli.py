@@ -195,7 +195,8 @@ def format_table(results: list[dict[str, Any]], mean: dict[str, Any] | None = No
 def evaluation_policies(
     args: argparse.Namespace, config: MiVeCCConfig | None = None
 ) -> dict[str, Any]:
-    """Coordinator policies for ``evaluate``: given checkpoints, else the shipped ones.
+    """Coordinator policies for ``evaluate``: given checkpoints, else the shipped ones of the
+    config's ``model`` (``pretrained/`` for ``paper``, ``pretrained/released/``).
 
     With ``config`` (the evaluation's), each policy's training config is compared with it: a
     K that does not fit is an error, other differences are warned about on stderr.
@@ -203,7 +204,8 @@ def evaluation_policies(
     from mivecc_agents.checkpoints import CheckpointError
     from mivecc_agents.policies import check_policy_config, load_policy, pretrained_path
 
-    paths = {kind: None if args.no_pretrained else pretrained_path(kind)
+    model = config.model if config is not None else "paper"  # the shipped policies per model
+    paths = {kind: None if args.no_pretrained else pretrained_path(kind, model)
              for kind in ("edge", "cloud")}
     given = {"edge": args.edge_checkpoint, "cloud": args.cloud_checkpoint}
     policies = {}

@@ -27,6 +27,7 @@ __all__ = [
     "PRETRAINED_DIR",
     "Policy",
     "check_policy_config",
+    "constant_policy",
     "load_policy",
     "pretrained_path",
     "pretrained_policies",
@@ -154,17 +155,45 @@ def check_policy_config(policy: Any, config: Any) -> list[str]:
     return out
 
 
-def pretrained_path(kind: str) -> Path | None:
-    """Path of the shipped pretrained checkpoint of a kind, or ``None`` if not shipped."""
-    path = PRETRAINED_DIR / f"{kind}.pt"
+def pretrained_path(kind: str, model: str = "paper") -> Path | None:
+    """Path of the shipped pretrained checkpoint of a kind for a model, or ``None``.
+
+    Args:
+        kind: ``"edge"`` or ``"cloud"``.
+        model: The env config's ``model``: ``"paper"`` (the default model; files
+            ``pretrained/<kind>.pt``) or ``"released"`` (``pretrained/released/<kind>.pt``,
+            trained on the released model).
+    """
+    folder = PRETRAINED_DIR if model == "paper" else PRETRAINED_DIR / str(model)
+    path = folder / f"{kind}.pt"
     return path if path.is_file() else None
 
 
-def pretrained_policies() -> dict[str, Policy]:
-    """The shipped policies as ``{"edge": fn, "cloud": fn}`` (only the kinds available)."""
+def pretrained_policies(model: str = "paper") -> dict[str, Policy]:
+    """The shipped policies of a model as ``{"edge": fn, "cloud": fn}`` (the kinds shipped)."""
     out: dict[str, Policy] = {}
     for kind in ("edge", "cloud"):
-        path = pretrained_path(kind)
+        path = pretrained_path(kind, model)
         if path is not None:
             out[kind] = load_policy(path, expected_kind=kind)
     return out
+
+
+def constant_policy(kind: str, accel_mps2: float, grid_size: int) -> Policy:
+    """A coordinator that always outputs ``accel_mps2`` [m/s^2] in every real column (the
+    constant-action ceilings of ``benchmarks/paper_table.py``).
+
+    Raises:
+        ValueError: ``accel_mps2`` outside [-3, 3] or not finite.
+    """
+    if not np.isfinite(accel_mps2) or abs(accel_mps2) > ACTION_SCALE_MPS2:
+        raise ValueError(f"accel_mps2: must be in [-3, 3] m/s^2, got {accel_mps2!r}")
+
+    def policy(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return (np.float32(accel_mps2) * np.asarray(mask, dtype=np.float32)).astype(np.float32)
+
+    policy.kind = kind  # type: ignore[attr-defined]
+    policy.grid_size = int(grid_size)  # type: ignore[attr-defined]
+    policy.checkpoint = f"constant {accel_mps2:+g} m/s^2"  # type: ignore[attr-defined]
+    policy.config = {}  # type: ignore[attr-defined]
+    return policy
