@@ -89,3 +89,15 @@ def test_tabulate_only_rebuilds_from_csvs_and_the_last_csv_wins(tmp_path: Path) 
 def test_bad_arguments_are_named(argv: list[str], match: str, tmp_path: Path) -> None:
     with pytest.raises(SystemExit, match=match):
         comparison.main([*argv, "--tabulate-only", "--out", str(tmp_path)])
+
+
+def test_optimisation_cost_benchmark_counts_schedules() -> None:
+    import optimisation_cost
+
+    (r,) = optimisation_cost.main(["--windows", "3", "--density", "1500", "--steps", "200"])
+    assert r["schedules"] >= 5 and r["milps_per_schedule"] >= 1.0
+    assert r["full_window_mean_ms"] > 0 and r["wall_s"] > 0
+    # the wrappers are removed again
+    from mivecc_env.sim import optimisation as op
+
+    assert op.schedule_milp.__name__ == "schedule_milp" and op._solve.__name__ == "_solve"

@@ -76,3 +76,30 @@ def test_optimisation_mode_runs_and_counts_collisions() -> None:
     np.testing.assert_array_equal(sim.arrived, sim.queued + sim.in_network + sim.exited
                                   + sim.collided)
     assert np.all(sim.v[sim.active] >= 0.0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_milp_is_feasible_and_no_worse_than_first_come_first_served(seed: int) -> None:
+    # instances too large for the brute force (6-9 vehicles): the MILP's schedule keeps every
+    # headway and bound, and its total delay is at most that of serving by earliest arrival
+    rng = np.random.default_rng(100 + seed)
+    n = int(rng.integers(6, 10))
+    earliest, _, lane, horizontal = _instance(rng, n)
+    latest = np.full(n, 1e3)
+    t = op.schedule_milp(earliest, latest, lane, horizontal, 1.5)
+    assert op.check_schedule(t, earliest, latest, lane, horizontal, 1.5) == []
+    fcfs = op.greedy_times(np.argsort(earliest, kind="stable"), earliest, lane, horizontal, 1.5)
+    assert op.check_schedule(fcfs, earliest, latest, lane, horizontal, 1.5) == []
+    assert np.sum(t - earliest) <= np.sum(fcfs - earliest) + 1e-6
+
+
+def test_committed_vehicles_too_close_fall_back_to_a_greedy_schedule() -> None:
+    # two committed crossing vehicles only 0.5 s apart make the MILP infeasible; the free
+    # vehicle is still scheduled a headway after both of them, the committed ones unchanged
+    earliest = np.array([1.0, 1.5, 0.5])
+    lane = np.array([0, 2, 1])
+    fixed = np.array([1.0, 1.5, np.nan])
+    t = op.schedule_milp(earliest, np.full(3, 30.0), lane, lane < 2, 1.5, fixed)
+    assert t[:2].tolist() == [1.0, 1.5]
+    # lane 1 runs parallel to lane 0 (no constraint) and crosses lane 2
+    assert t[2] == pytest.approx(1.5 + 1.5)
