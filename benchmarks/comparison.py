@@ -218,7 +218,7 @@ def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[st
     ax_v.set_xlabel("density [veh/lane/h]")
     ax_v.set_ylabel("average travel velocity [m/s]")
     ax_v.set_title(f"{r}x{c}: average travel velocity (mean +- sd, seeds {seeds})")
-    ax_v.legend(fontsize=8)
+    ax_v.legend(fontsize=7, loc="lower left", ncol=2)
     ax_c.set_xlabel("density [veh/lane/h]")
     ax_c.set_ylabel("collision events (sum over seeds)")
     ax_c.set_yscale("symlog")
