@@ -48,6 +48,7 @@ SEEDS = (0, 1, 2)
 BEHAVIOURS: dict[str, tuple[str, ...]] = {
     "1 speed reset": ("speed_reset",),
     "1b stale action off the virtual lanes": ("stale_action",),
+    "1c stale record reset entering the corner section": ("stale_corner_reset",),
     "2 sections": ("sections",),
     "3 section virtual lanes (+ entry lag)": ("section_virtual_lanes", "section_entry_lag"),
     "4 header rule": ("header_rule",),
@@ -156,13 +157,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--densities", type=int, nargs="+", default=list(DENSITIES),
                     help="densities of the released, schemes and consistent parts [veh/lane/h]")
+    ap.add_argument("--schemes", nargs="+", default=["E", "EE", "EEC"],
+                    choices=["E", "EE", "EEC"], help="schemes of the schemes part")
     args = ap.parse_args(argv)
     rows: list[dict[str, Any]] = []
     if "released" in args.parts:
         for d in args.densities:
             cell("released", "released", d, {"model": "released"}, args.steps, rows)
     if "schemes" in args.parts:
-        for scheme in ("E", "EE", "EEC"):
+        for scheme in args.schemes:
             for d in args.densities:
                 cell(f"released {scheme} (shipped policies)", "schemes", d, {}, args.steps, rows,
                      scheme)
@@ -189,7 +192,8 @@ def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
         w.writerows(rows)
     cmd = "python benchmarks/released_study.py " + " ".join(
         ["--steps", str(args.steps), "--parts", *args.parts,
-         "--densities", *map(str, args.densities)])
+         "--densities", *map(str, args.densities)]
+        + (["--schemes", *args.schemes] if "schemes" in args.parts else []))
     lines = [
         "# Released model study (MiVeCC-E, 3x3, seeds 0-2 as one batch)", "",
         f"Command: `{cmd}`. {args.steps} steps per cell. Collisions: strict events (any two "

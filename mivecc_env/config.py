@@ -232,6 +232,12 @@ class MiVeCCConfig:
         "rule; under speed_reset it moves with it before v is set back to v_max (released code: "
         "it keeps its last SV, so it can enter the next section slightly below v_max)"
     )
+    stale_corner_reset: bool = _choice(
+        False, (False, True), "with stale_action: a vehicle entering the section of the "
+        "south-east corner intersection forgets where its nearest vehicle was (recorded as "
+        "behind it), so its stale action there is |SV/eta| (released code: a debug branch "
+        "resets that record when a vehicle enters its section 8)"
+    )
     speed_reset: bool = _choice(
         False, (False, True), "every vehicle past a section's controlled part (until the next "
         "section) and on exit links drives at v_max, set instantly, no rule acting (released "

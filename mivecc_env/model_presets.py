@@ -29,6 +29,7 @@ RELEASED: dict[str, Any] = {
     "entry_accel_mps2": 3.0,  # 7: a new vehicle enters with a = +a_max
     "speed_reset": True,  # 1
     "stale_action": True,  # 1/3: out of the virtual lanes, a vehicle acts on its last a_end
+    "stale_corner_reset": True,  # 1c: the debug branch of the released code's section 8
     "sections": True,  # 2
     "section_virtual_lanes": True,  # 3
     "section_entry_lag": True,  # 3: one step unseen after entering the network or a section
@@ -53,6 +54,7 @@ PAPER: dict[str, Any] = {
     "entry_accel_mps2": 0.0,
     "speed_reset": False,
     "stale_action": False,
+    "stale_corner_reset": False,
     "sections": False,
     "section_virtual_lanes": False,
     "section_entry_lag": False,

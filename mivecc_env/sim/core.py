@@ -409,6 +409,7 @@ class Simulator:
             a_end = sections.stale_action(
                 self.network, c, view, s, seen, a_end, safety.sv, safety.d_front,
                 safety.d_back, self._sv_last.ravel(), self._closer_last.ravel(),
+                self._prev_s if c.stale_corner_reset else None,
             )
         rule = None
         if c.same_lane_rule:

@@ -125,6 +125,7 @@ def stale_action(
     network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView, s: FloatArray,
     seen: BoolArray, a_end: FloatArray, sv: FloatArray, d_front_m: FloatArray,
     d_back_m: FloatArray, sv_last: FloatArray, closer_last: FloatArray,
+    prev_s: tuple[IntArray, FloatArray] | None = None,
 ) -> FloatArray:
     """``a_end`` [m/s^2] with the released code's stale action (``stale_action=True``).
 
@@ -134,8 +135,14 @@ def stale_action(
     distance is below its *current* distance to its (possibly new) section's centre, as the
     released code compares the two across sections. ``sv_last`` / ``closer_last``: flat
     per-slot records, updated in place.
+
+    ``prev_s`` (``stale_corner_reset``): (flat slots, positions before the last move); a
+    vehicle that entered the section of the south-east corner intersection in that move has
+    its record set to 150 m first (:func:`corner_entries`), so unseen it acts on ``|SV/eta|``.
     """
     to_centre = distance_to_section_centre(network, config, view.lane, s)
+    if prev_s is not None:
+        closer_last[view.vehicle[corner_entries(network, config, view, s, prev_s)]] = 150.0
     ahead = d_front_m <= d_back_m
     closer_pos = np.where(ahead, s + d_front_m, s - d_back_m)
     closer = np.where(np.isfinite(np.minimum(d_front_m, d_back_m)),
@@ -146,6 +153,31 @@ def stale_action(
     ratio = sv_last[slots] / config.eta
     stale = np.where(closer_last[slots] < to_centre, ratio, np.abs(ratio))
     return np.where(seen, a_end, stale)
+
+
+def corner_intersection(network: GridNetwork) -> int:
+    """Id of the south-east corner intersection (largest x, smallest y): the released code's
+    section 8 on its 3x3 grid."""
+    x, y = network.intersection_xy[:, 0], network.intersection_xy[:, 1]
+    return int(np.lexsort((-x, y))[0])
+
+
+def corner_entries(
+    network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView, s: FloatArray,
+    prev_s: tuple[IntArray, FloatArray],
+) -> BoolArray:
+    """(n,) view vehicles that entered the corner intersection's section in the last move
+    (``prev_s`` = flat slots and positions before it; vehicles not in it had just entered the
+    network and are left out)."""
+    slots, s_old = prev_s
+    before = np.full(view.lane.size, -1, dtype=np.int64)
+    known = np.isin(view.vehicle, slots)
+    if known.any():
+        where = np.searchsorted(slots, view.vehicle[known])
+        before[known] = section_of(network, config, view.lane[known], s_old[where])[0]
+    k, _ = section_of(network, config, view.lane, s)
+    corner = network.lane_intersections[view.lane, k] == corner_intersection(network)
+    return known & (before != k) & corner
 
 
 def apply_speed_reset(

@@ -12,7 +12,9 @@ from mivecc_env.model_presets import PAPER, RELEASED
 from mivecc_env.sim import edge_selection, sections
 from mivecc_env.sim.core import Simulator
 from mivecc_env.sim.end_node import same_lane_threshold_m
+from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.safety import safety_value
+from mivecc_env.sim.virtual_lane import build_view
 from tests.sim._scenario import EAST, NORTH, WEST, place
 
 # 1x1 grid: lanes are 300 m long, the centre is at s = 150, conflict points at 145 and 155.
@@ -376,3 +378,35 @@ def test_slot_growth_keeps_the_positions_before_the_move() -> None:
     a._refresh_view()
     np.testing.assert_array_equal(a._seen, b._seen)
     assert a.safety.sv.tobytes() == b.safety.sv.tobytes()
+
+
+def test_stale_record_reset_entering_the_corner_section() -> None:
+    """``stale_corner_reset``: a vehicle that entered the south-east corner intersection's
+    section in the last move (unseen there for a step) forgets where its nearest vehicle was
+    and acts on |SV/3|; entering another section it keeps its record."""
+    cfg = MiVeCCConfig(rows=3, cols=3, model="released", scheme="E")
+    net = GridNetwork.from_config(cfg)
+    corner = sections.corner_intersection(net)
+    assert corner == 2 and net.intersection_xy[corner].tolist() == [450.0, 150.0]
+    # lane 0 runs east at y = 145 through centres at s = 150, 300, 450 (the corner); sections
+    # start 140 m before a centre: 310 m for the corner's, 160 m for the middle one's
+    s_old = np.array([309.5, 159.5, 200.0])  # -> 310.5 (corner), 160.5 (middle), 201 (no change)
+    s = s_old + 1.0
+    view = build_view(net, cfg.projection_window_m, cfg.projection_clear_m,
+                      np.ones((1, 3), dtype=bool), np.zeros((1, 3), dtype=np.int64), s[None])
+    prev = (view.vehicle.copy(), s_old[np.argsort(view.vehicle)])
+    entered = sections.corner_entries(net, cfg, view, view.s, prev)
+    assert entered.tolist() == [bool(x == 310.5) for x in view.s]
+    n = view.n_vehicles
+    for reset, expected in ((False, -2.0), (True, 2.0)):
+        sv_last = np.full(3, -6.0)  # last seen braking: SV -6, a_end = -2 when judged ahead
+        closer_last = np.full(3, 50.0)  # its nearest was 50 m before its centre: ahead of it
+        a = sections.stale_action(
+            net, cfg, view, view.s, np.zeros(n, dtype=bool), np.zeros(n), np.zeros(n),
+            np.full(n, np.inf), np.full(n, np.inf), sv_last, closer_last,
+            prev if reset else None,
+        )
+        got = dict(zip(view.s.tolist(), a.tolist(), strict=True))
+        assert got[310.5] == expected  # the corner entry: |SV/3| after the reset
+        assert got[160.5] == -2.0 and got[201.0] == -2.0  # other sections: record kept
+    assert RELEASED["stale_corner_reset"] is True and PAPER["stale_corner_reset"] is False
