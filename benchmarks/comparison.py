@@ -79,16 +79,19 @@ def _key(row: dict[str, Any]) -> tuple:
             int(float(row["density"])), int(float(row["seed"])), int(float(row["steps"])))
 
 
-def load_rows(paths: Sequence[Path]) -> dict[tuple, dict[str, Any]]:
+def load_rows(paths: Sequence[Path], model: str = "paper") -> dict[tuple, dict[str, Any]]:
     """Earlier runs by (scheme, rows, cols, density, seed, steps); a later path wins.
 
-    A row without a ``source`` gets the path it was read from.
+    Only runs of the env ``model`` are kept (a row without a ``model`` column ran the default,
+    ``"paper"``). A row without a ``source`` gets the path it was read from.
     """
     out: dict[tuple, dict[str, Any]] = {}
     for path in paths:
         with open(path, newline="", encoding="utf-8") as f:
             for row in csv.DictReader(f):
                 row = dict(row)
+                if (row.get("model") or "paper") != model:
+                    continue
                 row["scheme"] = ALIASES.get(row["scheme"], row["scheme"])
                 if not row.get("source"):
                     row["source"] = str(path)
@@ -242,6 +245,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="reuse matching runs of earlier CSVs (the last CSV holding a run wins)")
     p.add_argument("--tabulate-only", action="store_true",
                    help="simulate nothing: tables and figures of the runs found in --from-csv")
+    p.add_argument("--model", default="paper", choices=("paper",),
+                   help="env model of the runs reused from --from-csv (others are ignored); "
+                   "the comparators run the default model")
     p.add_argument("--out", type=Path, default=Path("docs/results/comparison"))
     return p.parse_args(argv)
 
@@ -271,7 +277,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     grids = _grids(args.grids)
     steps_for = _steps_for(args.steps_for, SCHEMES)
-    known = load_rows(args.from_csv)
+    known = load_rows(args.from_csv, args.model)
     args.out.mkdir(parents=True, exist_ok=True)
     jobs, rows = [], []
     for (r, c) in grids:

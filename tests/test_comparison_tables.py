@@ -101,3 +101,12 @@ def test_optimisation_cost_benchmark_counts_schedules() -> None:
     from mivecc_env.sim import optimisation as op
 
     assert op.schedule_milp.__name__ == "schedule_milp" and op._solve.__name__ == "_solve"
+
+
+def test_runs_of_another_env_model_are_not_mixed_in(tmp_path: Path) -> None:
+    paper = _write(tmp_path / "paper.csv", [("E", 300, 0, 12.0, 0)])
+    released = tmp_path / "released.csv"
+    released.write_text(paper.read_text().replace("scheme,", "model,scheme,", 1)
+                        .replace("\nE,", "\nreleased,E,").replace("12.0,", "5.0,"))
+    rows = comparison.load_rows([paper, released])
+    assert [float(r["avg_travel_velocity_mps"]) for r in rows.values()] == [12.0]
