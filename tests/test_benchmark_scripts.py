@@ -73,13 +73,14 @@ def test_comparison_runs_reuses_and_tabulates(tmp_path: Path) -> None:
 
 
 def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixture[str]) -> None:
-    # docs/results/released_study.md, "Traced collisions": E, released, 2100, seed 1, step 1184.
-    records = trace_collisions.main(["--density", "2100", "--seed", "1", "--steps", "1185",
+    # docs/results/released_study.md, "Traced collisions": E, released, 2100, seed 2, step 2378
+    # (the released simulator has one strict event on this stream too).
+    records = trace_collisions.main(["--density", "2100", "--seed", "2", "--steps", "2379",
                                      "--history", "2"])
     out = capsys.readouterr().out
-    assert [r["step"] for r in records] == [1184]
-    assert sorted(records[0]["vehicles"]) == [619, 696] and 7 in records[0]["areas"]
-    assert "v619 lane 2 s= 292.24" in out and "collision events: 1" in out
+    assert [r["step"] for r in records] == [2378]
+    assert sorted(records[0]["vehicles"]) == [1389, 1392] and 8 in records[0]["areas"]
+    assert "v1389 lane 5 s= 152.32" in out and "collision events: 1" in out
 
 
 def test_released_reference_geometry_and_streams() -> None:
