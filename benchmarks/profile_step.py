@@ -10,6 +10,10 @@ Usage::
 
     python benchmarks/profile_step.py --grid 3x3 --density 2100 --batch 64
     python benchmarks/profile_step.py --grid 3x3 --density 2100 --env EEC   # ParallelEnv, B=1
+    python benchmarks/profile_step.py --batched-env 64 --timer cpu   # BatchedMiVeCCEnv, EEC obs
+
+``--timer cpu`` charges each call its process CPU time instead of wall time: on a machine
+shared with other jobs the shares then depend much less on the load.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import argparse
 import cProfile
 import pstats
 import sys
+import time
 from collections.abc import Callable
 
 import numpy as np
@@ -25,6 +30,7 @@ import numpy as np
 #: (label, module file suffix, function name) of the phases reported.
 PHASES = (
     ("env step (all)", "parallel_env.py", "step"),
+    ("batched env step (all)", "batched.py", "step"),
     ("  core: Simulator.step", "core.py", "step"),
     ("    virtual-lane view (build_view)", "virtual_lane.py", "build_view"),
     ("      view kernel pass 1 (points, keys)", "view_kernel.py", "_points"),
@@ -41,8 +47,17 @@ PHASES = (
     ("    passing times (record)", "passing.py", "record"),
     ("    entries (_enter_vehicles)", "core.py", "_enter_vehicles"),
     ("      arrivals.advance", "arrivals.py", "advance"),
-    ("  edge state graphs", "state_graph.py", "edge_graphs"),
-    ("  cloud state graph", "state_graph.py", "cloud_graphs"),
+    ("  observations and rewards (_observe_and_pack)", "batched.py", "_observe_and_pack"),
+    ("    edge state graphs", "state_graph.py", "edge_graphs"),
+    ("      edge decisions (select_edge_decisions)", "state_graph.py", "select_edge_decisions"),
+    ("    cloud state graph", "state_graph.py", "cloud_graphs"),
+    ("      cloud decisions (select_cloud_decisions)", "state_graph.py",
+     "select_cloud_decisions"),
+    ("    graph fill kernel (both graphs)", "graph_kernel.py", "_build"),
+    ("    density indicator", "virtual_lane.py", "density_indicator"),
+    ("    reward terms", "batched.py", "_reward_terms"),
+    ("  infos (ParallelEnv)", "parallel_env.py", "_infos"),
+    ("    episode summary", "metrics.py", "episode_summary"),
 )
 
 
@@ -65,12 +80,28 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--batch", type=int, default=1, help="core batch size (ignored with --env)")
     p.add_argument("--env", choices=("E", "EE", "EEC"), default=None,
                    help="profile the full ParallelEnv step (B=1) of this scheme instead")
+    p.add_argument("--batched-env", type=int, default=None, metavar="B",
+                   help="profile BatchedMiVeCCEnv.step (scheme EEC, EEC observations) at B")
+    p.add_argument("--timer", choices=("wall", "cpu"), default="wall",
+                   help="cProfile clock: wall time or this process's CPU time")
     p.add_argument("--steps", type=int, default=300)
     p.add_argument("--warmup", type=int, default=600)
     a = p.parse_args(argv)
     rows, cols = (int(x) for x in a.grid.split("x"))
     step: Callable[[], object]
-    if a.env:
+    if a.batched_env:
+        from mivecc_env.batched import BatchedMiVeCCEnv
+
+        benv = BatchedMiVeCCEnv(batch_size=a.batched_env, rows=rows, cols=cols,
+                                density=a.density, scheme="EEC",
+                                max_steps=a.warmup + a.steps + 30)
+        benv.reset(seed=0)
+        for _ in range(a.warmup):  # fill the network with bare core steps (as speed.py does)
+            benv.sim.step()
+        a.warmup = 20
+        step = benv.step
+        what = f"BatchedMiVeCCEnv.step scheme EEC, B={a.batched_env}"
+    elif a.env:
         from mivecc_env import mivecc_v0
 
         env = mivecc_v0.parallel_env(rows=rows, cols=cols, density=a.density, scheme=a.env,
@@ -92,14 +123,15 @@ def main(argv: list[str] | None = None) -> int:
         what = f"Simulator.step scheme E, B={a.batch}"
     for _ in range(a.warmup):
         step()
-    prof = cProfile.Profile()
+    prof = cProfile.Profile(time.process_time) if a.timer == "cpu" else cProfile.Profile()
     prof.enable()
     for _ in range(a.steps):
         step()
     prof.disable()
     rows_out = split(pstats.Stats(prof), a.steps)
     top = rows_out[0][1] if rows_out else 1.0
-    print(f"{what}, {a.grid}, {a.density:g} veh/lane/h, {a.steps} profiled steps")
+    print(f"{what}, {a.grid}, {a.density:g} veh/lane/h, {a.steps} profiled steps, "
+          f"{a.timer} time")
     print(f"{'phase':<45} {'us/step':>9} {'share':>7}")
     for label, us in rows_out:
         print(f"{label:<45} {us:>9.0f} {us / top:>7.0%}")
