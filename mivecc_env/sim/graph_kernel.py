@@ -1,13 +1,21 @@
-"""Compiled (numba) fill of the state graphs' reference rows, identical to the numpy path.
+"""Compiled (numba) observation kernels, each identical to the numpy path it replaces.
 
-For each decision vehicle the numpy path of :func:`mivecc_env.sim.state_graph.build_graphs`
-takes the candidate points on either side of its own point on the sorted virtual lane, drops
-the invalid ones (outside the lane's run or the node's area), and stable-sorts the rest by
-distance (ties: lower point index first) to keep the K-1 nearest. Both halves are already
-sorted by distance, so this kernel merges them with two pointers instead: behind the vehicle a
-run of equal distances is emitted in increasing point index (the stable sort's tie order), and
-a tie between the two halves goes to the point behind (the lower index). The features are the
-same float operations in the same order, so the result is bit-identical (tested).
+* :func:`build` fills whole state graphs (head row, channels, reference rows, masks) in one
+  pass. For each decision vehicle the numpy path of
+  :func:`mivecc_env.sim.state_graph.build_graphs` takes the candidate points on either side of
+  its own point on the sorted virtual lane, drops the invalid ones (outside the lane's run or
+  the node's area), and stable-sorts the rest by distance (ties: lower point index first) to
+  keep the K-1 nearest. Both halves are already sorted by distance, so this kernel walks them
+  with two pointers, stopping after K-1 rows: behind the vehicle a run of equal distances is
+  emitted in increasing point index (the stable sort's tie order), and a tie between the two
+  halves goes to the point behind (the lower index).
+* :func:`select_per_group`: the K lowest keys per group (stable top-K by insertion).
+* :func:`density_indicator`, :func:`area_centres`, :func:`control_area`: loops replacing a few
+  numpy calls each.
+
+The features are the same float operations in the same order (no fast-math), so results are
+bit-identical (tested in ``tests/sim/test_graph_kernel.py`` and
+``tests/env/test_reward_kernel.py``).
 """
 
 from __future__ import annotations

@@ -188,9 +188,9 @@ def build_graphs(
             ``env * n_nodes + node_in_env``).
         area_centre_s: (len(decision),) centre of each decision's area on its lane [m];
             references outside ``area_radius_m`` of it are ignored (edge nodes).
-        use_kernel: fill the reference rows with the compiled kernel
-            (:mod:`mivecc_env.sim.graph_kernel`, bit-identical) or the numpy path; default:
-            the kernel when numba is available.
+        use_kernel: fill the graphs with the compiled kernel
+            (:func:`mivecc_env.sim.graph_kernel.build`, bit-identical) or the numpy path;
+            default: the kernel when numba is available.
     """
     n_rows = batch * n_nodes
     obs = np.zeros((n_rows, k, k, 3), dtype=np.float32)  # (node, row, column, channel)
