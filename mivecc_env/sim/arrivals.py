@@ -48,6 +48,9 @@ class ArrivalProcess:
         self.arrived = np.zeros(shape, dtype=np.int64)  # arrivals with time <= now
         self.entered = np.zeros(shape, dtype=np.int64)  # vehicles that left the queue
         self._last = np.zeros(shape)  # time of the last drawn arrival [s]
+        # (B, 1) and (1, n_lanes) indices: times[b, lane, i] of one i per (b, lane)
+        self._env_idx = np.arange(batch)[:, None]
+        self._lane_idx = np.arange(n_lanes)[None, :]
         self.reset([0] * batch)
 
     def set_rates(self, rate_vph: float | ArrayLike) -> None:
@@ -124,9 +127,7 @@ class ArrivalProcess:
         now = np.asarray(now_s, dtype=np.float64)
         now = now[:, None] if now.ndim == 1 else now
         while True:
-            cap = self.times.shape[2]
-            nxt = np.take_along_axis(self.times, (self.arrived % cap)[..., None], axis=2)[..., 0]
-            due = nxt <= now
+            due = self._buffered(self.arrived) <= now
             if not due.any():
                 return
             self.arrived += due
@@ -135,8 +136,11 @@ class ArrivalProcess:
 
     def head_arrival_time(self) -> NDArray[np.float64]:
         """(B, n_lanes) arrival time of the first queued vehicle (meaningless if none) [s]."""
-        cap = self.times.shape[2]
-        return np.take_along_axis(self.times, (self.entered % cap)[..., None], axis=2)[..., 0]
+        return self._buffered(self.entered)
+
+    def _buffered(self, count: NDArray[np.int64]) -> NDArray[np.float64]:
+        """(B, n_lanes) arrival time number ``count`` of each lane (from the ring buffer) [s]."""
+        return self.times[self._env_idx, self._lane_idx, count % self.times.shape[2]]
 
     def pop(self, mask: NDArray[np.bool_]) -> None:
         """Let the head vehicle of every (env, lane) in ``mask`` enter the network."""
