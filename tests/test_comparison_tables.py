@@ -110,3 +110,17 @@ def test_runs_of_another_env_model_are_not_mixed_in(tmp_path: Path) -> None:
                         .replace("\nE,", "\nreleased,E,").replace("12.0,", "5.0,"))
     rows = comparison.load_rows([paper, released])
     assert [float(r["avg_travel_velocity_mps"]) for r in rows.values()] == [12.0]
+
+
+def test_shipped_comparison_is_complete_and_its_table_rebuilds(tmp_path: Path) -> None:
+    # docs/results/comparison: every scheme, grid and density with seeds 0-2 at 3000 steps,
+    # and comparison_table.csv is what --tabulate-only makes of comparison.csv
+    docs = Path(__file__).resolve().parents[1] / "docs" / "results" / "comparison"
+    assert comparison.main(["--tabulate-only", "--from-csv", str(docs / "comparison.csv"),
+                            "--out", str(tmp_path)]) == 0
+    with open(tmp_path / "comparison_table.csv", newline="", encoding="utf-8") as fh:
+        table = list(csv.DictReader(fh))
+    assert len(table) == 2 * len(comparison.DENSITIES) * len(comparison.SCHEMES)
+    assert all(r["seeds"] == "0 1 2" and r["steps"] == "3000" for r in table)
+    assert (tmp_path / "comparison_table.csv").read_text() == (
+        docs / "comparison_table.csv").read_text()
