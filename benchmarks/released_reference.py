@@ -14,6 +14,8 @@ Arrival streams (``--streams``):
   (``mivecc_v0.parallel_env(...).reset(seed=s)``, the streams of ``mivecc evaluate --seed`` and
   of ``evaluate_scheme``), each project lane fed to the released lane with the same position
   and direction (the released grid is this one shifted by (-300, -300) m);
+* ``batch``: environment ``seed`` (0, 1 or 2) of the batch of ``released_study.py``
+  (``Simulator(config, batch_size=3, seed=[0, 1, 2])``);
 * ``poisson``: Poisson streams with the 1 s gap floor of the authors' MATLAB generator
   (``gen_multi_arvTime.m``), drawn from ``numpy.random.default_rng(seed)``.
 
@@ -38,6 +40,9 @@ from pathlib import Path
 import numpy as np
 
 from mivecc_env import mivecc_v0
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim.arrivals import ArrivalProcess
+from mivecc_env.sim.core import Simulator
 
 #: Released geometry: lane ``i``'s position from its distance ``p`` to the last centre [m].
 LANE_OFFSET_M = 5.0
@@ -45,6 +50,8 @@ SEGMENT_M = 150.0
 VALID_LEN_M = 450.0  # p at entry (3 intersections x 150 m)
 STRICT_M = 2.0
 DT_S = 0.1
+#: ``--same-entry-step``: arrival times fed this much earlier [s] (see :func:`lockstep`).
+ENTRY_NUDGE_S = 1e-9
 
 
 def load_scene(path: Path) -> types.ModuleType:
@@ -90,14 +97,26 @@ def env_arrivals(density: float, seed: int, horizon_s: float) -> np.ndarray:
     is zeros (the released files end that way)."""
     env = mivecc_v0.parallel_env(rows=3, cols=3, density=density, scheme="E", model="released")
     env.reset(seed=seed)
-    proc = copy.deepcopy(env.sim.arrivals)  # streams at time 0; nothing has entered
+    return _table(env.sim.arrivals, 0, density, horizon_s)
+
+
+def batch_arrivals(density: float, seed: int, horizon_s: float) -> np.ndarray:
+    """As :func:`env_arrivals` for environment ``seed`` of the batch of
+    ``benchmarks/released_study.py`` (``Simulator(config, batch_size=3, seed=[0, 1, 2])``)."""
+    cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=density, scheme="E", model="released")
+    return _table(Simulator(cfg, batch_size=3, seed=[0, 1, 2]).arrivals, seed, density,
+                  horizon_s)
+
+
+def _table(arrivals: ArrivalProcess, b: int, density: float, horizon_s: float) -> np.ndarray:
+    proc = copy.deepcopy(arrivals)  # streams at time 0; nothing has entered
     proc.advance(horizon_s)
-    count = proc.arrived[0]
+    count = proc.arrived[b]
     # Each lane's own arrivals up to the horizon, then +inf (never due); the buffer never
     # wraps here: nothing entered, so it grows instead.
     out = np.full((int(count.max()) + 1, 12), np.inf)
     for lane, rel in enumerate(lane_map(density).tolist()):
-        out[: count[lane], rel] = proc.times[0, lane, : count[lane]]
+        out[: count[lane], rel] = proc.times[b, lane, : count[lane]]
     out[-1] = 0.0
     return out
 
@@ -140,22 +159,90 @@ def run(scene: types.ModuleType, arrivals: np.ndarray, steps: int) -> dict:
             "pairs": pairs}
 
 
+def lockstep(scene: types.ModuleType, density: float, seed: int, steps: int,
+             overrides: dict | None = None) -> list[tuple[int, float]]:
+    """Step the released simulator and ``model="released"`` (MiVeCC-E, the environment's
+    streams of ``seed``) side by side; returns (step, largest position difference [m] over the
+    vehicles both have) for every step. Vehicles are matched by lane and arrival time."""
+    env = mivecc_v0.parallel_env(rows=3, cols=3, density=density, scheme="E", model="released",
+                                 max_steps=steps + 10, **(overrides or {}))
+    env.reset(seed=seed)
+    sim = env.sim
+    table = _table(sim.arrivals, 0, density, steps * DT_S + 60.0)
+    lanes = lane_map(density)
+    # Its clock adds 0.1 s per step, so it runs a hair behind k * 0.1 and lets an arrival at
+    # exactly a step boundary (the 1 s floor makes first arrivals of 1.0 s common) enter one
+    # step later than here; 1 ns earlier times remove that difference for the comparison.
+    feed = table - ENTRY_NUDGE_S
+    args = types.SimpleNamespace(collision_thr=STRICT_M, c_mode="closer", s_agent_num=15,
+                                 m_agent_num=60, type="s_test", priori_knowledge=True)
+    rel = scene.MultiTrafficInteraction(feed, args, m_thr=0.0)
+    zero = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
+    start = round(rel.current_time / DT_S)
+    for _ in range(start):
+        env.step(zero)
+    out = []
+    for k in range(start, steps):
+        if k > start:
+            rel.step(np.zeros((9, 15)), np.zeros(60), 0)
+            rel.scene_update()
+            rel.delete_vehicle()
+            env.step(zero)
+        theirs = {(i, table[it["seq_in_lane"], i]): VALID_LEN_M - it["p"]
+                  for i in range(12) for it in rel.veh_info[i]}
+        m = sim.active[0]
+        ours = {(int(lanes[ln]), ta): s for ln, ta, s in
+                zip(sim.lane[0, m].tolist(), sim.t_arrive[0, m].tolist(), sim.s[0, m].tolist(),
+                    strict=True)}
+        both = theirs.keys() & ours.keys()
+        dev = max((abs(theirs[x] - ours[x]) for x in both), default=0.0)
+        out.append((k, dev if len(both) == len(theirs) == len(ours) else np.inf))
+    return out
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", type=Path, required=True,
                    help="traffic_interaction_scene.py of a clone of the authors' repository")
-    p.add_argument("--streams", choices=["env", "poisson"], default="env")
+    p.add_argument("--streams", choices=["env", "batch", "poisson"], default="env")
     p.add_argument("--density", type=float, nargs="+", default=[2100.0], help="veh/lane/h")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--same-entry-step", action="store_true",
+                   help="feed arrival times 1 ns earlier, so that an arrival at exactly a step "
+                   "boundary enters on the same step as here (the released clock sums 0.1 s "
+                   "steps and runs a hair behind)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="env streams only: step both simulators side by side and print the "
+                   "first step where a position differs by more than 1e-6 m")
+    p.add_argument("--without-corner-reset", action="store_true",
+                   help="lockstep with stale_corner_reset=False (the preset before it)")
     args = p.parse_args(argv)
     scene = load_scene(args.scene)
-    make = env_arrivals if args.streams == "env" else poisson_arrivals
+    if args.lockstep:
+        rows = []
+        for density in args.density:
+            for seed in args.seeds:
+                res = lockstep(scene, density, seed, args.steps,
+                               {"stale_corner_reset": False} if args.without_corner_reset
+                               else None)
+                first = next(((k, d) for k, d in res if d > 1e-6), None)
+                print(f"lockstep density {density:.0f} seed {seed}: "
+                      + ("identical (< 1e-6 m) for all steps" if first is None else
+                         f"first difference at step {first[0]}: {first[1]:.3g} m (inf: the "
+                         "vehicle sets differ)"), flush=True)
+                rows.append({"density": density, "seed": seed, "first": first})
+        return rows
+    make = {"env": env_arrivals, "batch": batch_arrivals, "poisson": poisson_arrivals}[
+        args.streams]
     rows = []
     for density in args.density:
         for seed in args.seeds:
             t0 = time.perf_counter()
-            out = run(scene, make(density, seed, args.steps * DT_S + 60.0), args.steps)
+            table = make(density, seed, args.steps * DT_S + 60.0)
+            if args.same_entry_step:
+                table = table - ENTRY_NUDGE_S
+            out = run(scene, table, args.steps)
             out |= {"density": density, "seed": seed, "streams": args.streams}
             rows.append(out)
             print(f"{args.streams} density {density:.0f} seed {seed}: strict events "
