@@ -207,7 +207,8 @@ def _fmt_density(d: float) -> str:
 
 
 def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None) -> Path:
-    """Plot average travel velocity [m/s] vs frames, one line per density, from the CSV log."""
+    """Plot average travel velocity [m/s] vs frames per density from the CSV log: the running
+    value of the current episode (thin) and the value at each episode's end (dots)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -221,21 +222,21 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
     if rows:
         frames = [float(r["frames"]) for r in rows]
         ecols = [c for c in rows[0] if c.startswith("episode_velocity_mps_d")]
-        plotted = False
-        for c in ecols:  # final value of each finished episode
+        for c in ecols:
+            d = c[22:]
+            # running value of the current episode (thin), final value of each episode (dots)
+            line, = axes[0].plot(frames, [float(r[f"avg_velocity_mps_d{d}"]) for r in rows],
+                                 lw=0.8, alpha=0.5, label=f"{d} veh/lane/h, running")
             pts = [(f, float(r[c])) for f, r in zip(frames, rows, strict=True) if r[c] != "nan"]
             if pts:
                 xs, ys = zip(*pts, strict=True)
-                axes[0].plot(xs, ys, "o-", label=f"{c[22:]} veh/lane/h")
-                plotted = True
-        if not plotted:  # no episode finished yet: running value of the current episode
-            for c in (c for c in rows[0] if c.startswith("avg_velocity_mps_d")):
-                axes[0].plot(frames, [float(r[c]) for r in rows], label=f"{c[18:]} veh/lane/h")
+                axes[0].plot(xs, ys, "o-", color=line.get_color(),
+                             label=f"{d} veh/lane/h, episode end")
         axes[1].plot(frames, [float(r["critic_loss"]) for r in rows], label="critic loss")
         axes[1].plot(frames, [float(r["actor_loss"]) for r in rows], label="actor loss")
     axes[0].set_xlabel("environment frames [steps]")
     axes[0].set_ylabel("average travel velocity [m/s]")
-    axes[0].set_title("average travel velocity at episode end")
+    axes[0].set_title("average travel velocity of the episode (chunk)")
     axes[0].legend(title="density")
     axes[1].set_xlabel("environment frames [steps]")
     axes[1].set_ylabel("loss [-]")

@@ -225,3 +225,26 @@ def test_released_training_run_writes_a_released_network(tmp_path):
     np.testing.assert_array_equal(policy(obs, mask), policy(obs, mask))
     log = (tmp_path / "train_log.csv").read_text().splitlines()
     assert len(log) >= 2 and ",0.001,0.01," in log[-1]  # constant learning rates
+
+
+@pytest.mark.parametrize("model", ["paper", "released"])
+def test_shipped_policies_per_model_load_and_evaluate_deterministically(model):
+    import argparse
+
+    from mivecc_agents.cli import evaluation_policies
+    from mivecc_agents.evaluation import evaluate_batch
+    from mivecc_agents.policies import pretrained_path, pretrained_policies
+
+    paths = {kind: pretrained_path(kind, model) for kind in ("edge", "cloud")}
+    assert all(p is not None for p in paths.values())
+    assert (paths["edge"].parent.name == "released") == (model == "released")
+    policies = pretrained_policies(model)
+    runs = [evaluate_batch("EEC", 3, 3, 2100, 120, [0], policies=policies, progress=False,
+                           warn=False, model=model)[0] for _ in range(2)]
+    assert runs[0]["avg_travel_velocity_no_wait_mps"] == runs[1][
+        "avg_travel_velocity_no_wait_mps"]
+    assert runs[0]["min_distance_m"] == runs[1]["min_distance_m"]
+    # `mivecc evaluate` picks the shipped policies of the config's model
+    args = argparse.Namespace(no_pretrained=False, edge_checkpoint=None, cloud_checkpoint=None)
+    chosen = evaluation_policies(args, MiVeCCConfig(model=model, rows=3, cols=3))
+    assert {k: p.checkpoint for k, p in chosen.items()} == {k: str(p) for k, p in paths.items()}
