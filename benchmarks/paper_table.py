@@ -197,7 +197,7 @@ def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = 
     from matplotlib.figure import Figure
 
     gains = _gains_over_e(rows, grid) if rows else {}
-    fig = Figure(figsize=(7, 7.5 if gains else 4.5))
+    fig = Figure(figsize=(8, 9.5 if gains else 4.5))
     ax = fig.add_subplot(2, 1, 1) if gains else fig.add_subplot()
     schemes = sorted({s for s, _ in mean}, key=SCHEMES.index)
     for s in schemes:
@@ -236,7 +236,7 @@ def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = 
         gx.set_ylabel("gain over MiVeCC-E [%]")
         gx.set_title("Average travel velocity gain over MiVeCC-E, paired by seed (dots)")
         gx.grid(alpha=0.3)
-        gx.legend()
+        gx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 

@@ -44,6 +44,7 @@ RELEASED: dict[str, Any] = {
     "edge_sv_gate": -2.0,  # 8
     "edge_selection": "random",  # 8 (test time; the released training picks the lowest SV)
     "reward_sv_weight": 1.0,  # edge reward: mean SV with weight 1
+    "edge_reward_scope": "decisions",  # ... + mean (v - 12) of the selected vehicles
     "cloud_pick_population": "before_last_centre",  # 9: cloud picks before the last centre
 }
 
@@ -69,6 +70,7 @@ PAPER: dict[str, Any] = {
     "edge_sv_gate": None,
     "edge_selection": "lowest_sv",
     "reward_sv_weight": 0.05,
+    "edge_reward_scope": "area",
     "cloud_pick_population": "conflict_ahead",
 }
 

@@ -241,10 +241,22 @@ def test_shipped_policies_per_model_load_and_evaluate_deterministically(model):
     policies = pretrained_policies(model)
     runs = [evaluate_batch("EEC", 3, 3, 2100, 120, [0], policies=policies, progress=False,
                            warn=False, model=model)[0] for _ in range(2)]
-    assert runs[0]["avg_travel_velocity_no_wait_mps"] == runs[1][
-        "avg_travel_velocity_no_wait_mps"]
-    assert runs[0]["min_distance_m"] == runs[1]["min_distance_m"]
+    keys = ("mean_speed_mps", "in_network", "min_distance_m", "min_ttc_s", "collisions")
+    assert runs[0]["coordinator_actions"] == "policy"
+    assert [runs[0][k] for k in keys] == [runs[1][k] for k in keys]
     # `mivecc evaluate` picks the shipped policies of the config's model
     args = argparse.Namespace(no_pretrained=False, edge_checkpoint=None, cloud_checkpoint=None)
     chosen = evaluation_policies(args, MiVeCCConfig(model=model, rows=3, cols=3))
     assert {k: p.checkpoint for k, p in chosen.items()} == {k: str(p) for k, p in paths.items()}
+
+
+def test_constant_policy_is_the_ceiling_coordinator():
+    from mivecc_agents.policies import constant_policy
+
+    fn = constant_policy("edge", 3.0, 15)
+    mask = np.array([[1, 1, 0] + [0] * 12], dtype=np.float32)
+    out = fn(np.zeros((1, 15, 15, 3), np.float32), mask)
+    np.testing.assert_array_equal(out, 3.0 * mask)
+    assert out.dtype == np.float32 and fn.kind == "edge" and fn.grid_size == 15
+    with pytest.raises(ValueError, match="accel_mps2"):
+        constant_policy("cloud", 3.5, 60)
