@@ -107,11 +107,12 @@ def run(config: MiVeCCConfig, steps: int) -> dict[str, float]:
 
 
 def run_scheme(scheme: str, density: int, steps: int) -> dict[str, float]:
-    """One scheme with the shipped policies under ``model="released"``, one env per seed."""
+    """One scheme with the shipped released-model policies under ``model="released"``, one
+    env per seed."""
     from mivecc_agents.evaluation import evaluate_scheme
     from mivecc_agents.policies import pretrained_policies
 
-    policies = pretrained_policies()
+    policies = pretrained_policies("released")
     res = [
         evaluate_scheme(scheme, 3, 3, density, steps, seed, policies=policies, progress=False,
                         model="released")
