@@ -586,9 +586,15 @@ def _train(
     torch.manual_seed(seed)
 
     # --- networks, learner ------------------------------------------------------------------
+    start = _load_start(resume, stage, group) if resume is not None else None
+    if start is not None and network_variant(start) != p.network:
+        import sys
+
+        print(f"mivecc train: {resume} holds {network_variant(start)!r} networks: continuing "
+              f"with those (the preset names {p.network!r})", file=sys.stderr)
+        p = p.replace(network=network_variant(start))
     actor = make_actor(group, group, variant=p.network)
     critic = make_critic(group, group, variant=p.network)
-    start = _load_start(resume, stage, group) if resume is not None else None
     warm = start is not None and "loss" not in start
     if warm:
         try:
