@@ -130,6 +130,12 @@ def _plain(value: Any) -> Any:
     return value
 
 
+def network_variant(ckpt: dict[str, Any]) -> str:
+    """The network variant a checkpoint was trained with: its ``network`` entry, else its
+    preset's, else ``"paper"`` (checkpoints written before network variants)."""
+    return str(ckpt.get("network") or (ckpt.get("preset") or {}).get("network") or "paper")
+
+
 def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
     """Write a checkpoint atomically.
 

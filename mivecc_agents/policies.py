@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from mivecc_agents.checkpoints import CheckpointError, load_checkpoint
+from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, network_variant
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor_net
 
 __all__ = [
@@ -60,7 +60,7 @@ def load_policy(path: str | Path, expected_kind: str | None = None) -> Policy:
     """
     ckpt = load_checkpoint(path, expected_kind=expected_kind)
     kind = ckpt["kind"]
-    variant = str(ckpt.get("network") or (ckpt.get("preset") or {}).get("network") or "paper")
+    variant = network_variant(ckpt)
     with torch.random.fork_rng(devices=[]):  # the random initial weights are overwritten
         try:
             net = make_actor_net(kind, variant=variant)

@@ -17,7 +17,9 @@ the same 24 replayed samples per collected frame as ``paper`` in 4x fewer, 4x la
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
+import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -201,47 +203,46 @@ def preset_with(preset: str | TrainPreset, items: dict[str, Any]) -> TrainPreset
             message names the field).
     """
     p = get_preset(preset)
-    fields = {f.name: f for f in dataclasses.fields(TrainPreset)}
+    hints = typing.get_type_hints(TrainPreset)
+    settable = sorted(k for k in hints if k not in _NOT_SETTABLE)
     changes: dict[str, Any] = {}
     for key, raw in items.items():
-        if key not in fields or key in ("name", "env_overrides", "cloud_changes"):
-            settable = sorted(k for k in fields if k not in ("name", "env_overrides",
-                                                              "cloud_changes"))
+        if key not in settable:
             raise ValueError(f"--preset-set: unknown field {key!r}; settable: {settable}")
-        current = getattr(p, key)
         try:
-            changes[key] = _convert(raw, current, str(fields[key].type))
-        except (TypeError, ValueError):
+            changes[key] = _convert(str(raw).strip(), hints[key])
+        except ValueError:
+            allowed = typing.get_args(hints[key]) or hints[key].__name__
             raise ValueError(
-                f"--preset-set {key}: cannot use {raw!r} (a {fields[key].type} field)"
+                f"--preset-set {key}: cannot use {raw!r} (expected {allowed})"
             ) from None
     # an explicit change also holds in stage II
     changes["cloud_changes"] = tuple((k, v) for k, v in p.cloud_changes if k not in changes)
     return p.replace(**changes)
 
 
-def _convert(raw: Any, current: Any, type_name: str) -> Any:
-    text = str(raw).strip()
-    if text.lower() == "none" and "None" in type_name:
-        return None
-    if isinstance(current, bool) or type_name == "bool":
-        if text.lower() in ("true", "1", "yes"):
-            return True
-        if text.lower() in ("false", "0", "no"):
-            return False
+_NOT_SETTABLE = ("name", "env_overrides", "cloud_changes")
+
+
+def _convert(text: str, hint: Any) -> Any:
+    """``text`` as a value of the field type ``hint`` (``ValueError`` if it is not one)."""
+    options = typing.get_args(hint)
+    if typing.get_origin(hint) is Literal:
+        if text not in options:
+            raise ValueError(text)
+        return text
+    if type(None) in options:  # an optional field: "none" or a value of the other type
+        if text.lower() == "none":
+            return None
+        hint = next(t for t in options if t is not type(None))
+    if hint is bool:
+        if text.lower() not in ("true", "false", "1", "0"):
+            raise ValueError(text)
+        return text.lower() in ("true", "1")
+    value = hint(text)  # int or float
+    if not math.isfinite(value):
         raise ValueError(text)
-    if type_name.startswith("int"):
-        return int(text)
-    if type_name.startswith("float"):
-        value = float(text)
-        if value != value or value in (float("inf"), float("-inf")):
-            raise ValueError(text)
-        return value
-    if type_name.startswith("Literal"):
-        allowed = [a.strip().strip("'\"") for a in type_name[8:-1].split(",")]
-        if text not in allowed:
-            raise ValueError(text)
-    return text
+    return value
 
 
 def add_train_arguments(parser: Any) -> None:

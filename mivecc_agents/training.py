@@ -35,7 +35,12 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 
-from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, save_checkpoint
+from mivecc_agents.checkpoints import (
+    CheckpointError,
+    load_checkpoint,
+    network_variant,
+    save_checkpoint,
+)
 from mivecc_agents.exploration import make_exploration
 from mivecc_agents.learner import DDPGLearner, UpdateStats, make_loss
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
@@ -78,7 +83,7 @@ def make_env(config_overrides: dict[str, Any] | None = None, scheme: str | None 
     Returns:
         A ``TransformedEnv`` with groups ``edge`` and ``cloud``.
     """
-    from torchrl.envs import Compose, PettingZooWrapper, RenameTransform, RewardSum, TransformedEnv
+    from torchrl.envs import Compose, PettingZooWrapper, RenameTransform, TransformedEnv
 
     from mivecc_env import mivecc_v0
 
@@ -100,11 +105,19 @@ def make_env(config_overrides: dict[str, Any] | None = None, scheme: str | None 
                 out_keys=[(g, "mask") for g in groups],
                 create_copy=True,
             ),
-            RewardSum(
-                in_keys=[(g, "reward") for g in groups],
-                out_keys=[(g, "episode_reward") for g in groups],
-            ),
+            _episode_reward_sum(base),
         ),
+    )
+
+
+def _episode_reward_sum(base: Any) -> Any:
+    """``RewardSum`` of each agent group's reward into ``(g, "episode_reward")``."""
+    from torchrl.envs import RewardSum
+
+    groups = [g for g in GROUPS if g in base.group_map]
+    return RewardSum(
+        in_keys=[(g, "reward") for g in groups],
+        out_keys=[(g, "episode_reward") for g in groups],
     )
 
 
@@ -184,11 +197,6 @@ def load_frozen_edge_actor(path: str | Path) -> TensorDictModule:
 
 
 # --------------------------------------------------------------------------------------------
-def network_variant(ckpt: dict[str, Any]) -> str:
-    """The network variant a checkpoint was trained with (``"paper"`` before variants)."""
-    return str(ckpt.get("network") or (ckpt.get("preset") or {}).get("network") or "paper")
-
-
 def _buffer_keys(group: str) -> list:
     return [
         (group, "observation"),
@@ -453,7 +461,7 @@ def make_native_env(
     the ``edge`` group (stage I acts on no cloud graph, so none is built). ``options``:
     ``continuous``, ``raw_edge_period`` of the env.
     """
-    from torchrl.envs import RewardSum, TransformedEnv
+    from torchrl.envs import TransformedEnv
 
     from mivecc_agents.torchrl_env import MiVeCCTorchEnv
 
@@ -466,14 +474,7 @@ def make_native_env(
         **options,
         **overrides,
     )
-    groups = [g for g in GROUPS if g in base.group_map]
-    return TransformedEnv(
-        base,
-        RewardSum(
-            in_keys=[(g, "reward") for g in groups],
-            out_keys=[(g, "episode_reward") for g in groups],
-        ),
-    )
+    return TransformedEnv(base, _episode_reward_sum(base))
 
 
 def env_groups(env: Any) -> list[str]:

@@ -55,16 +55,8 @@ class MiVeCCEdgeEnv(gymnasium.Env):
     ) -> None:
         overrides.setdefault("scheme", "EE")
         self._env = MiVeCCParallelEnv(render_mode=render_mode, **overrides)
-        n = self._env.config.n_intersections
-        if (
-            isinstance(intersection, bool)
-            or not isinstance(intersection, int | np.integer)
-            or not 0 <= intersection < n
-        ):
-            raise ConfigError(
-                f"intersection: must be an integer in [0, {n - 1}], got {intersection!r}"
-            )
-        self.agent = edge_agent(int(intersection))
+        self.agent = edge_agent(_checked_intersection(intersection,
+                                                      self._env.config.n_intersections))
         self.observation_space = self._env.observation_space(self.agent)
         self.action_space = self._env.action_space(self.agent)
         self.render_mode = render_mode
@@ -138,16 +130,7 @@ class MiVeCCEdgeVectorEnv(VectorEnv):
         self.env = BatchedMiVeCCEnv(batch_size=num_envs, densities=densities, observe={"edge"},
                                     **overrides)
         c = self.env.config
-        n = c.n_intersections
-        if (
-            isinstance(intersection, bool)
-            or not isinstance(intersection, int | np.integer)
-            or not 0 <= intersection < n
-        ):
-            raise ConfigError(
-                f"intersection: must be an integer in [0, {n - 1}], got {intersection!r}"
-            )
-        self.intersection = int(intersection)
+        self.intersection = _checked_intersection(intersection, c.n_intersections)
         self.num_envs = self.env.batch_size
         self.render_mode = None
         k = c.k_edge
@@ -212,3 +195,16 @@ class MiVeCCEdgeVectorEnv(VectorEnv):
             infos[key] = out.edge_terms[key][:, i].copy()
             infos[f"_{key}"] = self._all.copy()
         return infos
+
+
+def _checked_intersection(intersection: object, n: int) -> int:
+    """``intersection`` as an int in [0, n); ``ConfigError`` naming the field otherwise."""
+    if (
+        isinstance(intersection, bool)
+        or not isinstance(intersection, int | np.integer)
+        or not 0 <= intersection < n
+    ):
+        raise ConfigError(
+            f"intersection: must be an integer in [0, {n - 1}], got {intersection!r}"
+        )
+    return int(intersection)
