@@ -73,6 +73,17 @@ def upper_bound_velocity_mps(config: MiVeCCConfig) -> float:
     return float(np.mean(lengths / min_travel_time_s(config, lengths)))
 
 
+_last_bound: list = [None, 0.0]  # (config, its upper bound): configs are immutable
+
+
+def _upper_bound_of(config: MiVeCCConfig) -> float:
+    """:func:`upper_bound_velocity_mps` with a one-entry identity memo (hashing a config, as
+    its cache does, costs more than the rest of a per-step summary's scalars)."""
+    if _last_bound[0] is not config:
+        _last_bound[:] = [config, upper_bound_velocity_mps(config)]
+    return _last_bound[1]
+
+
 #: Simulator counters behind the summary's per-period keys (:func:`counters`).
 COUNTERS: tuple[str, ...] = (
     "exited", "collision_events", "collided", "sum_travel_velocity",
@@ -134,8 +145,40 @@ def batch_summary(
 
 
 def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
-    """Metrics of environment ``env`` of a simulator since its last reset (floats)."""
-    return {key: float(value[env]) for key, value in batch_summary(sim).items()}
+    """Metrics of environment ``env`` of a simulator since its last reset (floats).
+
+    The values of :func:`batch_summary` (``float(batch_summary(sim)[key][env])``, bit for bit:
+    the same IEEE operations on Python floats, compared in ``tests/sim/test_metrics.py``),
+    computed from that environment's scalars only: the ParallelEnv puts this summary in its
+    infos every step, where the array version's many small numpy calls cost more than the
+    rest of the infos together.
+    """
+    exited, collision_events, collided, sum_v, sum_v_no_wait, sum_trip, sum_wait, \
+        sum_speed, vehicle_steps, env_steps = (getattr(sim, name).item(env)
+                                               for name in COUNTERS)
+    sim_time = env_steps * sim.config.dt_s
+    n = float(max(exited, 1))
+    has = exited > 0
+    return {
+        "avg_travel_velocity_mps": sum_v / n if has else 0.0,
+        "avg_travel_velocity_no_wait_mps": sum_v_no_wait / n if has else 0.0,
+        "upper_bound_mps": _upper_bound_of(sim.config),
+        "mean_speed_mps": sum_speed / max(vehicle_steps, 1),
+        "throughput": float(exited),
+        "throughput_vph": exited * 3600.0 / sim_time if sim_time > 0 else 0.0,
+        "collisions": float(collision_events),
+        "collided_vehicles": float(collided),
+        # sim.queued / in_network / arrived of one environment (without their (B,) sums)
+        "backlog": float(sum(sim.arrivals.queued[env].tolist())),
+        "in_network": float(np.count_nonzero(sim.active[env])),
+        "arrived": float(sum(sim.arrivals.arrived[env].tolist())),
+        "mean_trip_time_s": sum_trip / n if has else 0.0,
+        "mean_wait_time_s": sum_wait / n if has else 0.0,
+        "sim_time_s": float(sim_time),
+        "released_velocity_mps": float(sim.passing.velocity_mps()[env]),
+        "released_passed": float(sim.passing.count.item(env)),
+        **sim.near_miss.summary(env),
+    }
 
 
 def released_and_near_miss(sim: Simulator) -> dict[str, np.ndarray]:

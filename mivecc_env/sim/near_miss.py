@@ -52,6 +52,8 @@ the summaries travel in the environments' infos, whose equality checks NaN would
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -86,6 +88,28 @@ def ttc_percentile(hist: NDArray[np.int64], q: float = TTC_PERCENTILE) -> FloatA
     first = (np.cumsum(hist, axis=1) >= need[:, None]).argmax(axis=1)
     edge = np.where(first >= hist.shape[1] - 1, np.inf, (first + 1) * TTC_BIN_S)
     return np.where(total > 0, edge, np.inf)
+
+
+#: :func:`ttc_percentile_of` accumulates this many bins first (all of them if too few).
+_PREFIX_BINS = 256
+
+
+def ttc_percentile_of(hist: NDArray[np.int64], q: float = TTC_PERCENTILE) -> float:
+    """:func:`ttc_percentile` of one histogram ``(n_bins + 1,)``, as a float (bit-identical).
+
+    For the per-step summary of one environment: the same rule with scalar arithmetic, and the
+    cumulative count of a prefix of the bins first (the percentile bin is usually near the
+    start; all bins when the prefix is short of the count needed).
+    """
+    total = int(hist.sum())
+    if total == 0:
+        return np.inf
+    need = max(math.ceil(total * (q / 100.0)), 1)
+    cum = np.cumsum(hist[:_PREFIX_BINS])
+    if cum[-1] < need:
+        cum = np.cumsum(hist)
+    first = int(cum.searchsorted(need))  # the first bin whose cumulative count reaches need
+    return np.inf if first >= hist.shape[0] - 1 else (first + 1) * TTC_BIN_S
 
 
 class NearMissStats:
@@ -399,10 +423,9 @@ class NearMissStats:
 
     def summary(self, env: int) -> dict[str, float]:
         """The near-miss keys of one environment (``inf`` minima without samples)."""
-        one = slice(env, env + 1)
         return {
             "min_ttc_s": float(self.min_ttc_s[env]),
-            "ttc_p1_s": float(ttc_percentile(self.ttc_hist[one])[0]),
+            "ttc_p1_s": ttc_percentile_of(self.ttc_hist[env]),
             "min_pet_s": float(self.min_pet_s[env]),
             "pet_under_1s": float(self.pet_under[env]),
             "pet_samples": float(self.pet_samples[env]),

@@ -9,6 +9,7 @@ from mivecc_env.config import MiVeCCConfig
 from mivecc_env.metrics import (
     INF_WHEN_NO_DATA,
     SUMMARY_KEYS,
+    batch_summary,
     episode_summary,
     min_travel_time_s,
     upper_bound_velocity_mps,
@@ -141,3 +142,28 @@ def test_partial_reset_clears_the_new_measures_of_that_environment_only() -> Non
     assert fresh["released_velocity_mps"] == 0.0
     assert fresh["min_ttc_s"] == fresh["min_pet_s"] == fresh["min_distance_m"] == np.inf
     assert episode_summary(sim, 1) == before
+
+
+@pytest.mark.parametrize(
+    ("overrides", "batch"),
+    [({"rows": 3, "cols": 3, "density_vplh": 2100}, 1),
+     ({"rows": 1, "cols": 1, "density_vplh": 2400, "model": "released"}, 3),
+     ({"rows": 1, "cols": 2, "density_vplh": 600, "control": "signalized"}, 2)],
+)
+def test_episode_summary_is_the_batch_summary_bit_for_bit(overrides: dict, batch: int) -> None:
+    """The one-environment summary (scalar arithmetic, the ParallelEnv's infos every step)
+    equals ``float(batch_summary(...)[key][env])`` exactly, also across a partial reset."""
+    sim = Simulator(MiVeCCConfig(**overrides), batch_size=batch, seed=1)
+    for step in range(400):
+        if step == 250 and batch > 1:
+            sim.reset_at([1], seeds=[9])
+        sim.step()
+        if step % 23 == 0 or step == 399:
+            ref = batch_summary(sim)
+            for env in range(batch):
+                got = episode_summary(sim, env)
+                assert tuple(got) == SUMMARY_KEYS
+                assert all(type(v) is float for v in got.values())
+                want = {k: float(v[env]) for k, v in ref.items()}
+                assert {k: v.hex() for k, v in got.items()} == {
+                    k: v.hex() for k, v in want.items()}

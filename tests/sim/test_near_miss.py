@@ -12,7 +12,12 @@ import pytest
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim._numba import HAVE_NUMBA
 from mivecc_env.sim.core import Simulator
-from mivecc_env.sim.near_miss import TTC_BIN_S, NearMissStats, ttc_percentile
+from mivecc_env.sim.near_miss import (
+    TTC_BIN_S,
+    NearMissStats,
+    ttc_percentile,
+    ttc_percentile_of,
+)
 from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.virtual_lane import build_view
 from tests.sim._scenario import EAST, NORTH, WEST
@@ -95,6 +100,29 @@ def test_ttc_percentile_of_a_histogram() -> None:
     assert p[0] == pytest.approx(8 * TTC_BIN_S)
     assert p[1] == np.inf
     assert ttc_percentile(np.zeros((1, 2001), dtype=np.int64))[0] == np.inf  # no sample
+
+
+def test_one_histogram_percentile_matches_the_batch_one() -> None:
+    """The scalar form (the per-step summary of one environment) is bit-identical, also when
+    the percentile bin lies beyond the prefix it accumulates first, or in the overflow bin."""
+    rng = np.random.default_rng(0)
+    hists = [np.zeros(2001, dtype=np.int64)]
+    for _ in range(300):
+        h = np.zeros(2001, dtype=np.int64)
+        lo = int(rng.integers(0, 2001))
+        n = int(rng.integers(1, 400))
+        np.add.at(h, rng.integers(lo, 2001, size=n), 1)
+        hists.append(h)
+    late = np.zeros(2001, dtype=np.int64)
+    late[1500], late[3] = 500, 1  # 501 samples: need 6, reached only at bin 1500
+    over = np.zeros(2001, dtype=np.int64)
+    over[[0, 2000]] = 1, 1000
+    hists += [late, over]
+    batch = ttc_percentile(np.stack(hists))
+    for h, p in zip(hists, batch.tolist(), strict=True):
+        got = ttc_percentile_of(h)
+        assert isinstance(got, float) and got == p
+    assert ttc_percentile_of(late) == 1501 * TTC_BIN_S and ttc_percentile_of(over) == np.inf
 
 
 def test_post_encroachment_time() -> None:
