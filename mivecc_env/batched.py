@@ -39,7 +39,7 @@ from mivecc_env import metrics
 from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.actions import checked_action
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
-from mivecc_env.sim import edge_selection, reward_kernel, sections
+from mivecc_env.sim import cloud_view, edge_selection, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
 from mivecc_env.sim.virtual_lane import VirtualLaneView, density_indicator
@@ -161,6 +161,7 @@ class BatchedMiVeCCEnv:
         self._cloud: StateGraphs | None = None
         self._area = np.zeros(0, dtype=np.int64)
         self._cloud_pop = np.zeros(0, dtype=bool)
+        self._cloud_reward_pop = self._cloud_pop
         self._v = np.zeros(0)
         self._started = False
         self._last: BatchStep | None = None
@@ -381,6 +382,8 @@ class BatchedMiVeCCEnv:
         self._area = area = sections.control_area(sim.network, c, view.lane, view.s)
         # The cloud picks and is rewarded over one population (cloud_pick_population).
         self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population)
+        self._cloud_reward_pop = cloud_view.reward_population(
+            sim.network, c, view, self._cloud_pop, sim.prev_positions)
         self._v = v
         self._edge = self._cloud = None
         if "edge" in self.observe:
@@ -388,8 +391,10 @@ class BatchedMiVeCCEnv:
                                                 sim.step_count)
             self._edge = edge_graphs(sim.network, view, key, v, a, b, c, area)
         if "cloud" in self.observe:
-            di = density_indicator(view, c.di_n)
-            self._cloud = cloud_graphs(sim.network, view, di, v, a, b, c, self._cloud_pop)
+            cview = cloud_view.cloud_virtual_lanes(sim.network, c, view, sim.active, sim.lane,
+                                                   sim.s)  # the same view by default
+            di = density_indicator(cview, c.di_n)
+            self._cloud = cloud_graphs(sim.network, cview, di, v, a, b, c, self._cloud_pop)
         edge_terms, cloud_terms = self._reward_terms(events)
         steps = self.episode_steps
         edge, cloud = self._edge, self._cloud
@@ -456,7 +461,7 @@ class BatchedMiVeCCEnv:
         """Vehicles and sums of ``v - reward_v_ref_mps`` per edge node (B * n_edge,) and over
         the cloud population per environment (B,) (compiled: :mod:`..sim.reward_kernel`)."""
         b, n, v_ref = self.batch_size, self.n_edge, self.config.reward_v_ref_mps
-        area, pop = self._area, self._cloud_pop
+        area, pop = self._area, self._cloud_reward_pop
         if reward_kernel.HAVE_NUMBA:
             return reward_kernel.node_sums(view.env, area, pop, self._v, v_ref, b, n)
         inside = area >= 0

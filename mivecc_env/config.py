@@ -30,6 +30,8 @@ SignalController = Literal["fixed-time", "actuated", "max-pressure"]
 EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
 CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
+CloudView = Literal["window", "released"]
+CloudRewardPopulation = Literal["picks", "released"]
 EdgeRewardScope = Literal["area", "decisions"]
 Model = Literal["paper", "released"]
 AccelRecord = Literal["applied", "commanded"]
@@ -169,6 +171,21 @@ class MiVeCCConfig:
         "vehicles the cloud may pick, and its velocity reward's scope: those with a conflict "
         "point of their lane still ahead (default), those before the last intersection centre "
         "of their lane (released code), or all (earlier behaviour: most picks on exit links)",
+    )
+    cloud_view: CloudView = _choice(
+        "window", ("window", "released"),
+        "the cloud's virtual lanes: the edges' windowed view (projection_window_m / "
+        "projection_clear_m; default) or the released code's: own vehicles before the lane's "
+        "last centre, each crossing lane's whole upstream part projected until lane_offset_m "
+        "past its conflict point and only onto the part before that last centre "
+        "(sim/cloud_view.py)",
+    )
+    cloud_reward_population: CloudRewardPopulation = _choice(
+        "picks", ("picks", "released"),
+        "the cloud velocity reward's vehicles: the pick population (cloud_pick_population; "
+        "default) or the released code's controlled vehicles: every vehicle from its first "
+        "move until the step after it passed section_control_end_m beyond its lane's last "
+        "centre (sim/cloud_view.py)",
     )
 
     # --- end node (Algorithm 3) ---------------------------------------------------------

@@ -46,6 +46,8 @@ RELEASED: dict[str, Any] = {
     "reward_sv_weight": 1.0,  # edge reward: mean SV with weight 1
     "edge_reward_scope": "decisions",  # ... + mean (v - 12) of the selected vehicles
     "cloud_pick_population": "before_last_centre",  # 9: cloud picks before the last centre
+    "cloud_view": "released",  # 9: each crossing lane's whole upstream part on the cloud's lanes
+    "cloud_reward_population": "released",  # 9: cloud reward over the controlled vehicles
 }
 
 #: The same fields at this project's defaults (the paper reading).
@@ -72,6 +74,8 @@ PAPER: dict[str, Any] = {
     "reward_sv_weight": 0.05,
     "edge_reward_scope": "area",
     "cloud_pick_population": "conflict_ahead",
+    "cloud_view": "window",
+    "cloud_reward_population": "picks",
 }
 
 MODEL_PRESETS: dict[str, dict[str, Any]] = {"paper": PAPER, "released": RELEASED}

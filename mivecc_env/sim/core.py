@@ -246,6 +246,12 @@ class Simulator:
         return self._view
 
     @property
+    def prev_positions(self) -> tuple[IntArray, FloatArray] | None:
+        """(flat slots, positions [m]) of the vehicles of the last move, before it; None
+        before the first step."""
+        return self._prev_s
+
+    @property
     def safety(self) -> VehicleSafety:
         """Safety values of the current state (view order)."""
         return self._safety
