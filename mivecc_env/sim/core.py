@@ -276,6 +276,12 @@ class Simulator:
             neighbours = neighbours[:4]
         fast = None
         if neighbours is None and c.ttc_closing_offset_mps == 0.0:
+            fused = step_kernels.safety_fast(
+                self.v.ravel(), self.a.ravel(), view.vehicle, view.point_vehicle,
+                view.front_point, view.back_point, view.d_front, view.d_back, c,
+            )
+            if fused is not None:
+                return VehicleSafety(sv=fused[0], d_front=d_front, d_back=d_back, ttc=fused[1])
             fast = step_kernels.safety_inputs(
                 self.v.ravel(), self.a.ravel(), view.vehicle, view.point_vehicle,
                 view.front_point, view.back_point, view.d_front, view.d_back,
@@ -502,12 +508,26 @@ class Simulator:
     def _enter_vehicles(self, now_s: FloatArray, events: StepEvents) -> None:
         c = self.config
         self.arrivals.advance(now_s)
-        want = self.arrivals.queued > 0
-        if not want.any():
-            return
+        queued = self.arrivals.queued
         # A lane is blocked while any of its vehicles is closer than the clearance to its entry.
         clearance = (signals.entry_clearance_m(c) if c.control != "unsignalized"
                      else c.entry_clearance_m)
+        plan = step_kernels.entry_plan(self.active, self.lane, self.s, queued, clearance)
+        if plan is not None:  # compiled: same slots, same order as below
+            go, n_new, n_free = plan
+            if (n_new > n_free).any():
+                self._grow(int(n_new.max() + (self.capacity - n_free).max()))
+            step_kernels.place_entries(
+                go, self.arrivals.head_arrival_time(), now_s,
+                (self.active, self.lane, self.s, self.v, self.a, self.t_arrive, self.t_enter,
+                 self.vid), self.next_vid, c.v_init_mps, c.entry_accel_mps2,
+            )
+            self.arrivals.pop(go)
+            events.entered = n_new
+            return
+        want = queued > 0
+        if not want.any():
+            return
         blocked = step_kernels.blocked_entries(
             self.active, self.lane, self.s, clearance, self.network.n_lanes
         )

@@ -17,7 +17,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim._numba import HAVE_NUMBA, njit
+from mivecc_env.sim.safety import MIN_DISTANCE_M, MIN_TTC_S, SV_T_SAFE
 
 
 @njit
@@ -56,6 +58,97 @@ def safety_inputs(
         return None
     return _safety_inputs(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
                           bool(ego_acc))
+
+
+@njit
+def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back, ego_acc,
+                 min_d, alpha_d, thr, alpha_acc):  # pragma: no cover
+    """:func:`_safety_inputs` plus the arguments of the safety value's two logs."""
+    n = vehicle.size
+    ttc = np.empty(n, np.float64)
+    acc = np.empty(n, np.float64)
+    logs = np.empty(2 * n, np.float64)  # d / alpha_d, then min(d_front / thr, alpha_acc)
+    n_sensitive = 0
+    for i in range(n):
+        v = v_all[vehicle[i]]
+        df, db = d_front[i], d_back[i]
+        d = df if df < db else db
+        if df <= db:
+            vf = v_all[vehicle[point_vehicle[front[i]]]] if front[i] >= 0 else 0.0
+            closing = v - vf
+        else:
+            vb = v_all[vehicle[point_vehicle[back[i]]]] if back[i] >= 0 else 0.0
+            closing = vb - v
+        t = d / closing if (closing > 0 and d != np.inf) else np.inf
+        ttc[i] = t
+        if t > 0.0 and t < 1.0:
+            n_sensitive += 1
+        if ego_acc:
+            acc[i] = a_all[vehicle[i]]
+        else:
+            acc[i] = a_all[vehicle[point_vehicle[front[i]]]] if front[i] >= 0 else 0.0
+        logs[i] = (d if d > min_d else min_d) / alpha_d
+        r = (df if df > min_d else min_d) / thr
+        logs[n + i] = r if r < alpha_acc else alpha_acc
+    return ttc, acc, logs, n_sensitive
+
+
+@njit
+def _safety_combine(logs, sensitive, sv_t_sensitive, d_front, acc, beta_d, beta_acc,
+                    lambda_acc, sv_t_safe, sv_min, sv_max):  # pragma: no cover
+    """The safety value from the logs (same operations and order as ``safety_value``)."""
+    n = d_front.size
+    sv = np.empty(n, np.float64)
+    k = 0
+    for i in range(n):
+        sv_t = sv_t_safe
+        if k < sensitive.size and sensitive[k] == i:
+            sv_t = sv_t_sensitive[k]
+            k += 1
+        x = beta_d * logs[i] + sv_t
+        has_front = d_front[i] != np.inf
+        x = x + (lambda_acc * acc[i] * (beta_acc * logs[n + i]) if has_front else 0.0)
+        x = x if x > sv_min else sv_min
+        sv[i] = x if x < sv_max else sv_max
+    return sv
+
+
+def safety_fast(
+    v_all: NDArray[np.float64], a_all: NDArray[np.float64], vehicle: NDArray[np.int64],
+    point_vehicle: NDArray[np.int64], front: NDArray[np.int64], back: NDArray[np.int64],
+    d_front: NDArray[np.float64], d_back: NDArray[np.float64], config: MiVeCCConfig,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """(SV, ttc [s]) per view vehicle: :func:`safety_inputs` then ``safety_value``, fused.
+
+    Bit-identical to ``safety_value(*reference inputs)``: the logs and the tanh/power (only
+    where 0 < TTC < 1 s) are numpy's own calls on the same values; the rest is the reference's
+    IEEE arithmetic in the same order. None when numba is missing or for the released code's
+    SV variants (epsilons, a no-front distance), which run the reference.
+    """
+    c = config
+    if (not HAVE_NUMBA or c.sv_d_epsilon > 0.0 or c.sv_acc_epsilon > 0.0
+            or c.sv_no_front_distance_m is not None):
+        return None
+    ttc, acc, logs, n_sensitive = _safety_prep(
+        v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
+        c.sv_acc_source == "ego", MIN_DISTANCE_M, float(c.sv_alpha_d),
+        float(c.sv_d_threshold_m), float(c.sv_alpha_acc),
+    )
+    np.log(logs, out=logs)
+    if n_sensitive:
+        sensitive = np.flatnonzero((ttc > 0.0) & (ttc < 1.0))
+        t = np.maximum(ttc[sensitive], MIN_TTC_S)
+        sv_t = -((c.sv_alpha_t / np.tanh(t)) ** c.sv_beta_t)
+    else:
+        sensitive, sv_t = _NO_INDEX, _NO_VALUE
+    sv = _safety_combine(logs, sensitive, sv_t, d_front, acc, float(c.sv_beta_d),
+                         float(c.sv_beta_acc), float(c.sv_lambda_acc), SV_T_SAFE,
+                         float(c.sv_min), float(c.sv_max))
+    return sv, ttc
+
+
+_NO_INDEX = np.zeros(0, dtype=np.int64)
+_NO_VALUE = np.zeros(0, dtype=np.float64)
 
 
 @njit
@@ -150,3 +243,112 @@ def blocked_entries(
     if not HAVE_NUMBA:
         return None
     return _blocked_entries(active, lane, s, float(clearance_m), int(n_lanes))
+
+
+@njit
+def _entry_plan(active, lane, s, queued, clearance):  # pragma: no cover
+    """(go (B, n_lanes), vehicles entering per env, free slots per env)."""
+    bsz, cap = active.shape
+    n_lanes = queued.shape[1]
+    go = np.zeros((bsz, n_lanes), np.bool_)
+    n_new = np.zeros(bsz, np.int64)
+    n_free = np.zeros(bsz, np.int64)
+    blocked = np.zeros(n_lanes, np.bool_)
+    for b in range(bsz):
+        any_want = False
+        for ln in range(n_lanes):
+            blocked[ln] = False
+            if queued[b, ln] > 0:
+                any_want = True
+        free = 0
+        for k in range(cap):
+            if active[b, k]:
+                if any_want and s[b, k] < clearance:
+                    blocked[lane[b, k]] = True
+            else:
+                free += 1
+        n_free[b] = free
+        for ln in range(n_lanes):
+            if queued[b, ln] > 0 and not blocked[ln]:
+                go[b, ln] = True
+                n_new[b] += 1
+    return go, n_new, n_free
+
+
+@njit
+def _place_entries(go, head_time, now, active, lane, s, v, a, t_arrive, t_enter, vid,
+                   next_vid, v_init, a_init):  # pragma: no cover
+    """Put the head vehicle of every ``go`` lane into its environment's next free slot."""
+    bsz = active.shape[0]
+    n_lanes = go.shape[1]
+    for b in range(bsz):
+        k = 0
+        ordinal = 0
+        for ln in range(n_lanes):
+            if not go[b, ln]:
+                continue
+            while active[b, k]:
+                k += 1
+            active[b, k] = True
+            lane[b, k] = ln
+            s[b, k] = 0.0
+            v[b, k] = v_init
+            a[b, k] = a_init
+            t_arrive[b, k] = head_time[b, ln]
+            t_enter[b, k] = now[b]
+            vid[b, k] = next_vid[b] + ordinal
+            ordinal += 1
+        next_vid[b] += ordinal
+
+
+def entry_plan(
+    active: NDArray[np.bool_], lane: NDArray[np.int64], s: NDArray[np.float64],
+    queued: NDArray[np.int64], clearance_m: float,
+) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64]] | None:
+    """(go, n_new, n_free): lanes whose queue head enters (queued and no vehicle of the lane
+    closer than ``clearance_m`` to its entry), entries and free slots per environment."""
+    if not HAVE_NUMBA:
+        return None
+    return _entry_plan(active, lane, s, queued, float(clearance_m))
+
+
+def place_entries(
+    go: NDArray[np.bool_], head_time: NDArray[np.float64], now: NDArray[np.float64],
+    state: tuple[NDArray, ...], next_vid: NDArray[np.int64], v_init: float, a_init: float,
+) -> None:
+    """Fill the slots of the entering vehicles in place (the reference's slot order: the
+    environment's free slots ascending, lanes ascending). ``state``: the simulator's (active,
+    lane, s, v, a, t_arrive, t_enter, vid) arrays; ``next_vid`` is advanced."""
+    _place_entries(go, head_time, now, *state, next_vid, float(v_init), float(a_init))
+
+
+@njit
+def _advance_arrivals(times, generated, arrived, now, need):  # pragma: no cover
+    """Count every buffered arrival with time <= now into ``arrived``; stop a lane where its
+    buffer runs low (``need`` True: draw more, then call again). Returns the lanes in need."""
+    bsz, n_lanes, cap = times.shape
+    n_need = 0
+    for b in range(bsz):
+        t = now[b]
+        for ln in range(n_lanes):
+            need[b, ln] = False
+            arr = arrived[b, ln]
+            gen = generated[b, ln]
+            while gen - arr >= 2 and times[b, ln, arr % cap] <= t:
+                arr += 1
+                if gen - arr < 2:
+                    need[b, ln] = True
+                    n_need += 1
+            arrived[b, ln] = arr
+    return n_need
+
+
+def advance_arrivals(
+    times: NDArray[np.float64], generated: NDArray[np.int64], arrived: NDArray[np.int64],
+    now: NDArray[np.float64], need: NDArray[np.bool_],
+) -> int | None:
+    """``ArrivalProcess.advance``'s counting loop (``arrived`` updated in place); the number of
+    lanes whose buffer must be refilled before calling again (``need`` marks them)."""
+    if not HAVE_NUMBA:
+        return None
+    return int(_advance_arrivals(times, generated, arrived, now, need))
