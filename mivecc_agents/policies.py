@@ -80,6 +80,18 @@ def load_policy(path: str | Path, expected_kind: str | None = None) -> Policy:
     net.eval()
     for prm in net.parameters():
         prm.requires_grad_(False)
+    policy = actor_policy(net, kind)
+    policy.checkpoint = str(path)  # type: ignore[attr-defined]
+    policy.config = dict(ckpt.get("config") or {})  # type: ignore[attr-defined]
+    return policy
+
+
+def actor_policy(net: torch.nn.Module, kind: str) -> Policy:
+    """A deterministic numpy policy calling an actor network (no gradients).
+
+    The network is used as it is, not copied: a policy made during training acts with the
+    weights of the moment it is called. Carries ``.kind`` and ``.grid_size``.
+    """
     k = net.spec.grid_size
 
     def policy(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -96,8 +108,6 @@ def load_policy(path: str | Path, expected_kind: str | None = None) -> Policy:
 
     policy.kind = kind  # type: ignore[attr-defined]
     policy.grid_size = k  # type: ignore[attr-defined]
-    policy.checkpoint = str(path)  # type: ignore[attr-defined]
-    policy.config = dict(ckpt.get("config") or {})  # type: ignore[attr-defined]
     return policy
 
 
@@ -122,8 +132,9 @@ def check_policy_config(policy: Any, config: Any) -> list[str]:
     Returns:
         Warnings (empty when all fits): the scheme does not use this coordinator; a cloud
         policy on another grid than it was trained on (the cloud sees the whole grid; an edge
-        policy sees one intersection, so it is trained on 1x1 and used on any grid); and any
-        of :data:`DYNAMICS_FIELDS` that differ.
+        policy sees one intersection, so it is trained on 1x1 and used on any grid); a cloud
+        policy used with another ``cloud_period`` than it was trained with; and any of
+        :data:`DYNAMICS_FIELDS` that differ.
 
     Raises:
         CheckpointError: The environment's state-graph size K differs from the policy's.
@@ -147,6 +158,9 @@ def check_policy_config(policy: Any, config: Any) -> list[str]:
             f"the cloud policy was trained on a {trained.get('rows')}x{trained.get('cols')} "
             f"grid, the environment is {config.rows}x{config.cols}"
         )
+    if kind == "cloud" and trained and trained.get("cloud_period", 1) != config.cloud_period:
+        out.append(f"the cloud policy was trained deciding every {trained.get('cloud_period', 1)}"
+                   f" steps, the environment has cloud_period={config.cloud_period}")
     diff = [f"{name}={trained[name]!r} (here {getattr(config, name)!r})"
             for name in DYNAMICS_FIELDS if name in trained and trained[name] != getattr(
                 config, name)]

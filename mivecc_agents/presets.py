@@ -84,6 +84,12 @@ class TrainPreset:
             pairs (reward form, training-time edge selection); explicit ``--set`` wins.
         cloud_changes: Fields that differ in stage II, as ``(name, value)`` pairs
             (:meth:`for_stage`).
+        eval_every_frames: Every this many frames (and before the first update and at the
+            end), evaluate the actor deterministically against its stage's baseline
+            (:mod:`mivecc_agents.train_eval`: ``eval_log.csv``, ``eval_curve.png``); 0: never.
+        eval_steps: Steps of each evaluation episode.
+        eval_seeds: Evaluation seeds per density (seeds ``EVAL_SEED0, EVAL_SEED0 + 1, ...``,
+            apart from the training seeds).
     """
 
     name: str
@@ -111,6 +117,9 @@ class TrainPreset:
     network: Literal["paper", "released"] = "paper"
     env_overrides: tuple[tuple[str, Any], ...] = ()
     cloud_changes: tuple[tuple[str, Any], ...] = ()
+    eval_every_frames: int = 0
+    eval_steps: int = 1500
+    eval_seeds: int = 1
 
     def for_stage(self, stage: str) -> TrainPreset:
         """The preset as used in a stage (``cloud_changes`` applied in stage II; the raw edge
@@ -172,6 +181,9 @@ PRESETS: dict[str, TrainPreset] = {
         ),
     ),
 }
+
+#: First seed of the periodic evaluation (``eval_seeds`` consecutive seeds).
+EVAL_SEED0 = 1000
 
 DEFAULT_PRESET = "stable"
 """Preset used when none is named (the paper's critic lr diverges with Adam; docs/training.md)."""

@@ -16,6 +16,8 @@ key                            shape                                        dtyp
 ``(g, "info", "mask")``        ``(B, n_g, K)``                              float32
 ``(g, "info", term)``          ``(B, n_g)``, ``term`` in ``REWARD_TERMS``   float32
 ``(s, "info", summary key)``   ``(B, 1)`` (``summary_keys``)                 float32
+``("cloud", "info",            ``(B, 1)``, only with ``cloud_period > 1``:    bool
+"decides")``                   the cloud action is used on the next step
 ``"done" | "terminated" |      ``(B, 1)``                                   bool
 "truncated"``
 =============================  ===========================================  ================
@@ -132,6 +134,9 @@ class MiVeCCTorchEnv(EnvBase):
         }
         #: The group whose infos hold the episode summary.
         self.summary_group = "cloud" if "cloud" in groups else "edge"
+        #: cloud_period > 1: ``("cloud", "info", "decides")`` says whether the cloud action
+        #: is used on the next step (mivecc_env.cloud_hold).
+        self._holds_cloud = c.cloud_period > 1 and c.scheme == "EEC"
         self._make_specs()
         if seed is not None:
             self.set_seed(seed)
@@ -149,6 +154,8 @@ class MiVeCCTorchEnv(EnvBase):
         for g in self.groups:
             n, k = self._n[g], self._k[g]
             info = {"mask": Unbounded((b, n, k), dtype=torch.float32)}
+            if g == "cloud" and self._holds_cloud:
+                info["decides"] = Categorical(2, (b, n), dtype=torch.bool)
             summary = self.summary_keys if g == self.summary_group else ()
             for key in (*REWARD_TERMS, *summary):
                 info[key] = Unbounded((b, n), dtype=torch.float32)
@@ -233,6 +240,8 @@ class MiVeCCTorchEnv(EnvBase):
                 for key in self.summary_keys:
                     info[key] = _f32(summary[key])[:, None].expand(b, n)
             info["mask"] = mask
+            if g == "cloud" and self._holds_cloud:
+                info["decides"] = torch.from_numpy(self._batched.cloud_decides)[:, None]
             td = {
                 "observation": torch.from_numpy(o),
                 "mask": mask,

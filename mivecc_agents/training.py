@@ -43,6 +43,7 @@ from mivecc_agents.checkpoints import (
 )
 from mivecc_agents.exploration import make_exploration
 from mivecc_agents.learner import DDPGLearner, UpdateStats, make_loss
+from mivecc_agents.macro_steps import cloud_macro_transitions
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
 
@@ -647,6 +648,9 @@ def _train(
     remaining = max(0, total_frames - state["frames"])
     # steps of each env per iteration: the preset's, fewer if the run is shorter than that
     fpb = n_envs * max(1, min(p.frames_per_batch, -(-remaining // n_envs)))
+    cloud_period = _cloud_period(stage, overrides, dens[0])
+    if cloud_period > 1:  # whole decision blocks per batch (cloud_macro_transitions)
+        fpb = n_envs * cloud_period * max(1, fpb // (n_envs * cloud_period))
 
     # --- replay buffer, sized on purpose ---------------------------------------------------
     keys = _buffer_keys(group)
@@ -725,6 +729,22 @@ def _train(
             },
         )
 
+    evaluate = _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {},
+                                    out_dir, edge_ckpt_path, append=not write_header)
+    next_eval = state["frames"]
+
+    def _maybe_evaluate(final: bool = False) -> None:
+        nonlocal next_eval
+        if evaluate is None or (state["frames"] < next_eval and not final):
+            return
+        gain = evaluate(actor.module, state["frames"], state["updates"])
+        if progress:
+            import sys
+
+            bar.write(f"eval at {state['frames']} frames: {evaluate.scheme} gain {gain:+.2f} %",
+                      file=sys.stderr)
+        next_eval = state["frames"] + p.eval_every_frames
+
     metrics: dict[str, float] = {}
     episodes = 0
     t0 = time.perf_counter()
@@ -739,6 +759,7 @@ def _train(
     with stop:
         collector = None
         try:
+            _maybe_evaluate()
             if remaining > 0 and not stop.requested:
                 collector = _make_collector(
                     _worker_env_fns(backend, dens, overrides, scheme, p, seed, state, workers,
@@ -753,7 +774,11 @@ def _train(
                     n = data.numel()
                     state["frames"] += n
                     state["iteration"] += 1
-                    buffer.extend(data.select(*keys).reshape(-1))
+                    if cloud_period > 1:
+                        buffer.extend(cloud_macro_transitions(data, cloud_period, keys)
+                                      .reshape(-1))
+                    else:
+                        buffer.extend(data.select(*keys).reshape(-1))
                     if noise is not None:
                         noise.step(n)
                     stats = UpdateStats()
@@ -792,7 +817,11 @@ def _train(
                         break
                     if save_every and state["iteration"] % save_every == 0:
                         _save(metrics)
+                    _maybe_evaluate()
                     t_last = time.perf_counter()
+            if not stop.requested and evaluate is not None and next_eval - p.eval_every_frames \
+                    < state["frames"]:
+                _maybe_evaluate(final=True)  # the final weights, unless just evaluated
         finally:
             if collector is not None:
                 with contextlib.suppress(Exception):  # an interrupted worker may be gone
@@ -806,6 +835,33 @@ def _train(
     if stop.requested:
         raise TrainingInterrupted(path, state["frames"])
     return path
+
+
+def _periodic_evaluation(
+    p: TrainPreset, stage: str, rows: int, cols: int, dens: list[float],
+    config_overrides: dict[str, Any], out_dir: Path, edge_checkpoint: str | None, append: bool,
+) -> Any:
+    """The preset's :class:`~mivecc_agents.train_eval.PeriodicEvaluation` (``None``: off)."""
+    if p.eval_every_frames <= 0:
+        return None
+    from mivecc_agents.policies import load_policy
+    from mivecc_agents.presets import EVAL_SEED0
+    from mivecc_agents.train_eval import PeriodicEvaluation
+
+    edge = load_policy(edge_checkpoint, "edge") if stage == "cloud" else None
+    return PeriodicEvaluation(
+        stage, rows, cols, dens, range(EVAL_SEED0, EVAL_SEED0 + max(1, p.eval_seeds)),
+        p.eval_steps, config_overrides, out_dir, edge_policy=edge, append=append,
+    )
+
+
+def _cloud_period(stage: str, overrides: dict[str, Any], density: float) -> int:
+    """The env's ``cloud_period`` in stage II (1 in stage I: no cloud acts)."""
+    if stage != "cloud":
+        return 1
+    from mivecc_env.config import from_overrides
+
+    return int(from_overrides(None, **{**overrides, "density": density}).cloud_period)
 
 
 def _env_options(p: TrainPreset) -> dict[str, Any]:

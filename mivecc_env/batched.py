@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from mivecc_env import metrics
 from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.actions import checked_action
+from mivecc_env.cloud_hold import HeldCloudCommands, decision_steps
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim import cloud_view, edge_selection, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
@@ -168,8 +169,15 @@ class BatchedMiVeCCEnv:
         self.continuous = bool(continuous)
         self._chunk_start = np.zeros(self.batch_size, dtype=np.int64)  # env step of its start
         self._chunk_counters = metrics.counters(self.sim)
+        self._cloud_hold = HeldCloudCommands(self.sim.active.shape)
 
     # ------------------------------------------------------------------------------------
+    @property
+    def cloud_decides(self) -> BoolArray:
+        """(B,) whether the cloud's action is used on each environment's next step
+        (``config.cloud_period``, :mod:`mivecc_env.cloud_hold`; always true for 1)."""
+        return decision_steps(self.sim.env_steps, self.config.cloud_period)
+
     @property
     def densities(self) -> FloatArray:
         """(B,) demand of each environment [veh/lane/h] (read-only view)."""
@@ -304,6 +312,10 @@ class BatchedMiVeCCEnv:
             cloud_action: (B, K_cloud) accelerations [m/s^2] of the cloud node's columns, or
                 ``None``. Actions of padded columns are ignored. Under scheme ``E`` both are
                 ignored, under ``EE`` the cloud action is.
+                With ``cloud_period = n > 1`` the cloud action is used only on the
+                environments' decision steps (:attr:`cloud_decides`) and then held by the
+                vehicles it commands (:mod:`mivecc_env.cloud_hold`); on other steps it is
+                ignored.
             signal_action: (B, n_int) integer phase each signal agent wants green (0
                 east-west, 1 north-south), -1 where ``signal_controller`` decides; ``None``:
                 it decides everywhere. Needs ``signal_agents=True``.
@@ -360,6 +372,10 @@ class BatchedMiVeCCEnv:
             if self._cloud is None:
                 raise RuntimeError("step: cloud_action given but 'cloud' is not observed")
             cloud_cmd = self._commands(self._cloud, cloud_action[:, None, :])
+        if self.config.cloud_period > 1 and scheme == "EEC":
+            view = sim.view
+            cloud_cmd = self._cloud_hold.commands(
+                cloud_cmd, self.cloud_decides, sim.vid, view.vehicle[self._cloud_pop])
         events = sim.step(edge_cmd, cloud_cmd, signal_phase=signal_action, raw_edge=raw_edge)
         return self._observe_and_pack(events)
 

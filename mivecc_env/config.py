@@ -191,6 +191,11 @@ class MiVeCCConfig:
     # --- end node (Algorithm 3) ---------------------------------------------------------
     eta: float = _num(3.0, 0.0, 100.0, "conversion factor: a_end = SV / eta", lo_open=True)
     omega: float = _num(0.2, 0.0, 1.0, "fusion weight of the cloud action")
+    cloud_period: int = _int(
+        1, 1, 1000, "the cloud decides every this many steps (steps 0, n, 2n... of each "
+        "environment); its action is held by the vehicles it picked until the next decision "
+        "(while they stay in the cloud's population); 1 (paper): every step",
+    )
     end_rule: EndRule = _choice(
         "sensible", ("sensible", "literal"),
         "sensible: nearest ahead -> SV/eta, nearest behind -> |SV/eta|; literal: as printed",

@@ -19,9 +19,9 @@ TINY = get_preset("stable").replace(
 )
 
 
-def train_tiny_edge(out_dir: Path, **kwargs: Any) -> Path:
+def train_tiny_edge(out_dir: Path, preset: Any = TINY, **kwargs: Any) -> Path:
     """A 200-frame stage-I run on 1x1 at 1500 veh/lane/h (2 envs); returns the checkpoint."""
     from mivecc_agents.training import train
 
-    return train("edge", TINY, frames=200, rows=1, cols=1, densities=1500, seed=0,
+    return train("edge", preset, frames=200, rows=1, cols=1, densities=1500, seed=0,
                  out_dir=out_dir, progress=False, **kwargs)

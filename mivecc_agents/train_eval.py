@@ -1,0 +1,147 @@
+"""Deterministic evaluation of the policy being trained, every N frames (the learning curve).
+
+The chunk-end values of the training log run under the exploration policy (and, in the
+released trainer's stage I, with the raw edge action on every other step), so they say little
+about the policy itself. :class:`PeriodicEvaluation` runs the current actor without noise on
+fixed seeds, beside the scheme without it, and logs the gain:
+
+* stage I (edge): scheme ``EE`` with the actor vs ``E``;
+* stage II (cloud): ``EEC`` with the actor and the frozen stage-I edge vs ``EE`` with that edge.
+
+Each evaluation is one batch of ``len(densities) x len(seeds)`` environments
+(:func:`~mivecc_agents.evaluation.evaluate_batch`) of ``steps`` steps on the training grid, with
+the user's env fields (``--set``) but none of the preset's training-only fields (its reward form
+and training-time edge selection). The metric is the average travel velocity [m/s], or the
+released-style velocity (455 m metric) under ``model="released"``. Rows go to
+``eval_log.csv`` (one per density and evaluation) and the curve to ``eval_curve.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mivecc_agents.evaluation import Policy, evaluate_batch
+from mivecc_agents.policies import actor_policy
+
+#: Columns of ``eval_log.csv``.
+EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
+               "collisions", "baseline_collisions", "metric")
+
+
+class PeriodicEvaluation:
+    """Evaluate an actor deterministically against its stage's baseline (module docstring).
+
+    Args:
+        stage: ``"edge"`` or ``"cloud"``.
+        rows, cols: training grid.
+        densities: [veh/lane/h].
+        seeds: evaluation seeds (each density runs every seed).
+        steps: steps per evaluation episode.
+        config_overrides: env fields of the evaluation (the user's ``--set``).
+        out_dir: folder of ``eval_log.csv`` and ``eval_curve.png``.
+        edge_policy: stage II: the frozen edge's numpy policy (used in both runs).
+        append: continue an existing log (a resumed run).
+    """
+
+    def __init__(
+        self,
+        stage: str,
+        rows: int,
+        cols: int,
+        densities: Sequence[float],
+        seeds: Sequence[int],
+        steps: int,
+        config_overrides: dict[str, Any],
+        out_dir: Path,
+        edge_policy: Policy | None = None,
+        append: bool = False,
+    ) -> None:
+        self.stage = stage
+        self.scheme, base_scheme = ("EE", "E") if stage == "edge" else ("EEC", "EE")
+        self.kind = "edge" if stage == "edge" else "cloud"
+        self._args = dict(rows=rows, cols=cols, densities=list(densities), steps=int(steps),
+                          seeds=list(seeds))
+        self._overrides = {k: v for k, v in config_overrides.items() if k != "max_steps"}
+        released = self._overrides.get("model") == "released"
+        self.metric = "released_velocity_mps" if released else "avg_travel_velocity_mps"
+        self._edge = edge_policy
+        base_policies = {"edge": edge_policy} if edge_policy is not None else {}
+        self.baseline = self._per_density(
+            evaluate_batch(base_scheme, **self._args, policies=base_policies, progress=False,
+                           warn=False, **self._overrides)
+        )
+        self.csv_path = Path(out_dir) / "eval_log.csv"
+        self.png_path = Path(out_dir) / "eval_curve.png"
+        if not (append and self.csv_path.exists()):
+            with self.csv_path.open("w", newline="") as fh:
+                csv.DictWriter(fh, fieldnames=EVAL_FIELDS).writeheader()
+
+    def _per_density(self, results: list[dict[str, Any]]) -> dict[float, tuple[float, float]]:
+        """density -> (mean metric over seeds, collision events summed over seeds)."""
+        out: dict[float, tuple[float, float]] = {}
+        for d in self._args["densities"]:
+            mine = [r for r in results if r["density"] == float(d)]
+            out[float(d)] = (float(np.mean([r[self.metric] for r in mine])),
+                             float(sum(r["collisions"] for r in mine)))
+        return out
+
+    def __call__(self, actor_net: torch.nn.Module, frames: int, updates: int) -> float:
+        """Evaluate the actor now, append its rows to the log, redraw the curve.
+
+        Returns:
+            The mean gain over the densities [%].
+        """
+        policies = {self.kind: actor_policy(actor_net, self.kind)}
+        if self._edge is not None:
+            policies["edge"] = self._edge
+        now = self._per_density(
+            evaluate_batch(self.scheme, **self._args, policies=policies, progress=False,
+                           warn=False, **self._overrides)
+        )
+        gains = []
+        with self.csv_path.open("a", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=EVAL_FIELDS)
+            for d, (v, coll) in now.items():
+                base, base_coll = self.baseline[d]
+                gain = 100.0 * (v / base - 1.0) if base > 0 else float("nan")
+                gains.append(gain)
+                writer.writerow({"frames": frames, "updates": updates, "density": d,
+                                 "velocity_mps": v, "baseline_mps": base, "gain_pct": gain,
+                                 "collisions": coll, "baseline_collisions": base_coll,
+                                 "metric": self.metric})
+        plot_eval_curve(self.csv_path, self.png_path,
+                        f"{self.scheme} vs {'E' if self.stage == 'edge' else 'EE'}")
+        return float(np.nanmean(gains))
+
+
+def plot_eval_curve(csv_path: Path, png_path: Path, title: str) -> Path:
+    """Gain over the baseline [%] vs training frames, one line per density."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with Path(csv_path).open() as fh:
+        rows = list(csv.DictReader(fh))
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for d in sorted({float(r["density"]) for r in rows}):
+        mine = [r for r in rows if float(r["density"]) == d]
+        ax.plot([int(r["frames"]) for r in mine], [float(r["gain_pct"]) for r in mine], "o-",
+                label=f"{d:g} veh/lane/h")
+    ax.axhline(0.0, color="grey", lw=0.8)
+    metric = rows[0]["metric"] if rows else "avg_travel_velocity_mps"
+    ax.set_xlabel("training frames [env steps]")
+    ax.set_ylabel(f"gain in {metric} [%]")
+    ax.set_title(f"deterministic evaluation: {title}")
+    if rows:
+        ax.legend(title="density")
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=100)
+    plt.close(fig)
+    return Path(png_path)

@@ -1,0 +1,35 @@
+"""Periodic deterministic evaluation during training (eval_log.csv, eval_curve.png)."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+pytest.importorskip("torchrl")
+
+from mivecc_agents.evaluation import evaluate_batch
+from mivecc_agents.policies import load_policy
+from mivecc_agents.presets import EVAL_SEED0, preset_with
+from tests.agents.tiny import TINY, train_tiny_edge
+
+
+def test_edge_training_logs_deterministic_evaluations(tmp_path):
+    preset = preset_with(TINY, {"eval_every_frames": "100", "eval_steps": "400",
+                                "eval_seeds": "2"})
+    path = train_tiny_edge(tmp_path, preset=preset)
+    with (tmp_path / "eval_log.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["frames"]) for r in rows] == [0, 100, 200]  # before, during, at the end
+    assert (tmp_path / "eval_curve.png").stat().st_size > 10_000
+    # the last row is the final policy's EE against E on the evaluation seeds
+    seeds = [EVAL_SEED0, EVAL_SEED0 + 1]
+    ee = evaluate_batch("EE", 1, 1, 1500, 400, seeds, policies={"edge": load_policy(path)},
+                        progress=False)
+    e = evaluate_batch("E", 1, 1, 1500, 400, seeds, progress=False)
+    mean = lambda rs: sum(r["avg_travel_velocity_mps"] for r in rs) / len(rs)  # noqa: E731
+    last = rows[-1]
+    assert float(last["velocity_mps"]) == pytest.approx(mean(ee), rel=1e-12)
+    assert float(last["baseline_mps"]) == pytest.approx(mean(e), rel=1e-12)
+    assert float(last["gain_pct"]) == pytest.approx(100 * (mean(ee) / mean(e) - 1), rel=1e-9)
+    assert {r["baseline_mps"] for r in rows} == {last["baseline_mps"]}
