@@ -285,11 +285,17 @@ class MiVeCCParallelEnv(ParallelEnv):
                 edge_cols = np.full((1, len(self.edge_agents), self.config.k_edge), np.nan)
                 edge_cols[0, [self._edge_index[a] for a in edges]] = acts
         if CLOUD_AGENT in actions:
-            cloud_cols = self._check_action(CLOUD_AGENT, actions[CLOUD_AGENT])[None]
+            action = actions[CLOUD_AGENT]
+            cloud = self._in_box(action, (self.config.k_cloud,))
+            if cloud is None:
+                cloud = self._check_action(CLOUD_AGENT, action)
+            cloud_cols = cloud[None]
         return edge_cols, cloud_cols
 
     def _phases(self, actions: Mapping[str, Any]) -> np.ndarray | None:
         """(1, n_int) phases of the signal agents (-1 for those left out), ``None`` if none."""
+        if not self._signal_index:
+            return None
         acting = [a for a in actions if a in self._signal_index]
         if not acting:
             return None
@@ -314,18 +320,23 @@ class MiVeCCParallelEnv(ParallelEnv):
         in a padded column, a bad value) each action is checked on its own (:meth:`_check_action`)
         so that the rule is applied exactly and an error names the offending agent.
         """
-        try:
-            acts = np.asarray([actions[a] for a in agents], dtype=np.float64)
-        except (ValueError, TypeError, RuntimeError):
-            acts = None
-        if (
-            acts is None
-            or acts.shape != (len(agents), self.config.k_edge)
-            # NaN compares False, so NaN and inf take the exact path.
-            or not (np.abs(acts) <= self._a_limit).all()
-        ):
+        acts = self._in_box([actions[a] for a in agents], (len(agents), self.config.k_edge))
+        if acts is None:
             acts = np.stack([self._check_action(a, actions[a]) for a in agents])
         return acts
+
+    def _in_box(self, action: Any, shape: tuple[int, ...]) -> np.ndarray | None:
+        """``action`` as a float64 array if it converts directly, has ``shape`` and every value
+        is in the box; ``None`` otherwise (then the exact rule decides, and names the error)."""
+        try:
+            arr = np.asarray(action, dtype=np.float64)
+        except (ValueError, TypeError, RuntimeError):
+            return None
+        if arr.shape != shape:
+            return None
+        # NaN compares False (and min / max propagate it), so NaN and inf take the exact path.
+        lim = self._a_limit
+        return arr if arr.min() >= -lim and arr.max() <= lim else None
 
     def _check_action(self, agent: str, action: Any) -> np.ndarray:
         """``action`` as a float64 array, or ``ValueError`` naming the agent and the box.
@@ -362,16 +373,18 @@ class MiVeCCParallelEnv(ParallelEnv):
         """
         if not self.agents:
             return {}
-        edge_terms = [out.edge_terms[k][0].tolist() for k in REWARD_TERMS]
+        k_sv, k_vel, k_col = REWARD_TERMS
+        terms = out.edge_terms
         infos: dict[str, dict] = {
-            agent: dict(zip(("mask", *REWARD_TERMS), values, strict=True))
-            for agent, *values in zip(self.edge_agents, out.edge_mask[0], *edge_terms,
-                                      strict=True)
+            agent: {"mask": mask, k_sv: sv, k_vel: vel, k_col: col}
+            for agent, mask, sv, vel, col in zip(
+                self.edge_agents, out.edge_mask[0], terms[k_sv][0].tolist(),
+                terms[k_vel][0].tolist(), terms[k_col][0].tolist(), strict=True)
         }
-        cloud = {"mask": out.cloud_mask[0]}
-        cloud.update({k: float(out.cloud_terms[k][0]) for k in REWARD_TERMS})
-        cloud.update(self.summary())
-        infos[CLOUD_AGENT] = cloud
+        terms = out.cloud_terms
+        infos[CLOUD_AGENT] = {"mask": out.cloud_mask[0], k_sv: terms[k_sv].item(0),
+                              k_vel: terms[k_vel].item(0), k_col: terms[k_col].item(0),
+                              **self.summary()}
         if out.signal_terms is not None:
             terms = [out.signal_terms[k][0].tolist() for k in sig.SIGNAL_REWARD_TERMS]
             for agent, *values in zip(self.signal_agents, *terms, strict=True):
