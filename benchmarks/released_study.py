@@ -20,6 +20,7 @@ Usage (one command; progress on stderr; CSV + markdown under
 benchmarks/results/released_study/, the markdown also copied to docs/results/)::
 
     python benchmarks/released_study.py [--steps 3000] [--parts released divergence consistent]
+        [--schemes E EE EEC] [--densities ...] [--set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -96,6 +97,7 @@ def run(config: MiVeCCConfig, steps: int) -> dict[str, float]:
     return {
         "collisions": int(sim.collision_events.sum()),
         "collided_vehicles": int(sim.collided.sum()),
+        "released_check": int(sim.released_flagged.sum()),
         "arrived": int(sim.arrived.sum()),
         # pooled over the seeds: sum of path lengths / sum of passing times (455 m / mean time)
         "released_velocity_mps": float(
@@ -106,16 +108,17 @@ def run(config: MiVeCCConfig, steps: int) -> dict[str, float]:
     }
 
 
-def run_scheme(scheme: str, density: int, steps: int) -> dict[str, float]:
-    """One scheme with the shipped released-model policies under ``model="released"``, one
-    env per seed."""
+def run_scheme(scheme: str, density: int, steps: int,
+               overrides: dict[str, Any] | None = None) -> dict[str, float]:
+    """One scheme with the shipped released-model policies under ``model="released"`` (then
+    ``overrides``), one env per seed."""
     from mivecc_agents.evaluation import evaluate_scheme
     from mivecc_agents.policies import pretrained_policies
 
     policies = pretrained_policies("released")
     res = [
         evaluate_scheme(scheme, 3, 3, density, steps, seed, policies=policies, progress=False,
-                        model="released")
+                        model="released", **(overrides or {}))
         for seed in SEEDS
     ]
     passed = sum(r["released_passed"] for r in res)
@@ -126,6 +129,7 @@ def run_scheme(scheme: str, density: int, steps: int) -> dict[str, float]:
     return {
         "collisions": int(sum(r["collisions"] for r in res)),
         "collided_vehicles": int(sum(r["collided_vehicles"] for r in res)),
+        "released_check": int(sum(r["released_check_collisions"] for r in res)),
         "arrived": int(sum(r["arrived"] for r in res)),
         "released_velocity_mps": 455.0 / mean_time if passed else float("nan"),
         "travel_velocity_mps": sum(r["avg_travel_velocity_mps"] * r["throughput"]
@@ -138,12 +142,13 @@ def cell(label: str, part: str, density: int, overrides: dict[str, Any], steps: 
          rows: list[dict[str, Any]], scheme: str = "E") -> None:
     t = time.time()
     if part == "schemes":
-        res = run_scheme(scheme, density, steps)
+        res = run_scheme(scheme, density, steps, overrides)
     else:
         cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=float(density), scheme="E", **overrides)
         res = run(cfg, steps)
     rows.append({"part": part, "variant": label, "density": density, **res})
-    print(f"[{part}] {label} @ {density}: {res['collisions']} collisions, "
+    print(f"[{part}] {label} @ {density}: {res['collisions']} collisions "
+          f"({res['released_check']} flagged by the released check), "
           f"v455 {res['released_velocity_mps']:.3f} m/s, v600 {res['travel_velocity_mps']:.3f}, "
           f"min TTC {res['min_ttc_s']:.2f} s, min PET {res['min_pet_s']:.2f} s, "
           f"min dist {res['min_distance_m']:.2f} m ({time.time() - t:.0f} s)",
@@ -160,7 +165,14 @@ def main(argv: list[str] | None = None) -> None:
                     help="densities of the released, schemes and consistent parts [veh/lane/h]")
     ap.add_argument("--schemes", nargs="+", default=["E", "EE", "EEC"],
                     choices=["E", "EE", "EEC"], help="schemes of the schemes part")
+    ap.add_argument("--set", nargs="*", default=[], metavar="FIELD=VALUE",
+                    help="config fields for the schemes part, after model='released' (e.g. "
+                    "cloud_view=window: the cloud view the shipped cloud was trained on)")
     args = ap.parse_args(argv)
+    from mivecc_agents.cli import parse_set_items
+
+    scheme_over = parse_set_items(args.set)
+    suffix = "".join(f", {k}={v}" for k, v in scheme_over.items())
     rows: list[dict[str, Any]] = []
     if "released" in args.parts:
         for d in args.densities:
@@ -168,8 +180,8 @@ def main(argv: list[str] | None = None) -> None:
     if "schemes" in args.parts:
         for scheme in args.schemes:
             for d in args.densities:
-                cell(f"released {scheme} (shipped policies)", "schemes", d, {}, args.steps, rows,
-                     scheme)
+                cell(f"released {scheme} (shipped policies{suffix})", "schemes", d, scheme_over,
+                     args.steps, rows, scheme)
     if "divergence" in args.parts:
         cell("released", "divergence", 2100, {"model": "released"}, args.steps, rows)
         cell("paper", "divergence", 2100, {}, args.steps, rows)
@@ -194,23 +206,27 @@ def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
     cmd = "python benchmarks/released_study.py " + " ".join(
         ["--steps", str(args.steps), "--parts", *args.parts,
          "--densities", *map(str, args.densities)]
-        + (["--schemes", *args.schemes] if "schemes" in args.parts else []))
+        + (["--schemes", *args.schemes] if "schemes" in args.parts else [])
+        + (["--set", *args.set] if args.set else []))
     lines = [
         "# Released model study (MiVeCC-E, 3x3, seeds 0-2 as one batch)", "",
         f"Command: `{cmd}`. {args.steps} steps per cell. Collisions: strict events (any two "
         "vehicles closer than 2 m), summed over the 3 seeds. v455: released-style velocity "
         "(455 m / mean passing time from entry to 5 m past the last centre, no entry wait); "
-        "v600: this project's average travel velocity (600 m lane, entry wait included).", "",
+        "v600: this project's average travel velocity (600 m lane, entry wait included). "
+        "Released check: the released code's own collision count, per flagged vehicle "
+        "(`released_check_collisions`).", "",
         "Near misses over the 3 seeds: minimum TTC on the virtual lanes, minimum PET at the "
         "conflict points and its count under 1 s, minimum centre distance of any two vehicles.",
         "",
-        "| part | variant | density | collisions | v455 [m/s] | v600 [m/s] | min TTC [s] | "
-        "min PET [s] | PET < 1 s | min distance [m] | arrived |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| part | variant | density | collisions | released check | v455 [m/s] | v600 [m/s] | "
+        "min TTC [s] | min PET [s] | PET < 1 s | min distance [m] | arrived |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['part']} | {r['variant']} | {r['density']} | {r['collisions']} | "
+            f"{r['released_check']} | "
             f"{r['released_velocity_mps']:.3f} | {r['travel_velocity_mps']:.3f} | "
             f"{r['min_ttc_s']:.2f} | {r['min_pet_s']:.2f} | {int(r['pet_under_1s'])} | "
             f"{r['min_distance_m']:.2f} | {r['arrived']} |"

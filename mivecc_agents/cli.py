@@ -55,7 +55,8 @@ _DEDICATED = {
 _TABLE_KEYS: tuple[str, ...] = (
     "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
     "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
-    "backlog", "in_network", "arrived", "mean_trip_time_s", "mean_wait_time_s", "sim_time_s",
+    "released_check_collisions", "backlog", "in_network", "arrived", "mean_trip_time_s",
+    "mean_wait_time_s", "sim_time_s",
     "released_velocity_mps", "released_passed", "min_ttc_s", "ttc_p1_s", "min_pet_s",
     "pet_under_1s", "pet_samples", "min_distance_m", "steps", "steps_per_s",
 )

@@ -62,9 +62,9 @@ SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", *COMPARATORS)
 RESULT_KEYS: tuple[str, ...] = (
     "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
     "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
-    "backlog", "mean_trip_time_s", "steps", "steps_per_s", "scheme", "rows", "cols",
-    "density", "seed", "end_rule", "same_lane_rule", "released_velocity_mps", "min_ttc_s",
-    "ttc_p1_s", "min_pet_s", "pet_under_1s", "min_distance_m",
+    "released_check_collisions", "backlog", "mean_trip_time_s", "steps", "steps_per_s",
+    "scheme", "rows", "cols", "density", "seed", "end_rule", "same_lane_rule",
+    "released_velocity_mps", "min_ttc_s", "ttc_p1_s", "min_pet_s", "pet_under_1s", "min_distance_m",
 )
 
 #: Config fields reported with every result (the readings of ambiguous parts of the paper).

@@ -8,6 +8,9 @@
 * mean speed in the network (over all vehicle-steps), throughput (exited vehicles, and per
   hour), collisions (events and vehicles removed), entry backlog (queued vehicles), mean trip
   and waiting times, and the accounting terms;
+* ``released_check_collisions``: the collision count of the released code's own, lenient
+  check, per vehicle it flags (``mivecc_env.sim.released_check``), beside this project's
+  strict event count ``collisions``;
 * the released code's velocity (``released_velocity_mps``): path length from the network entry
   to 5 m past the last intersection centre of the lane (455 m on 3x3) over the mean passing
   time to that mark, no entry wait (``mivecc_env.sim.passing``: ``sum(length) / sum(time)``,
@@ -39,7 +42,8 @@ if TYPE_CHECKING:
 SUMMARY_KEYS: tuple[str, ...] = (
     "avg_travel_velocity_mps", "avg_travel_velocity_no_wait_mps", "upper_bound_mps",
     "mean_speed_mps", "throughput", "throughput_vph", "collisions", "collided_vehicles",
-    "backlog", "in_network", "arrived", "mean_trip_time_s", "mean_wait_time_s", "sim_time_s",
+    "released_check_collisions", "backlog", "in_network", "arrived", "mean_trip_time_s",
+    "mean_wait_time_s", "sim_time_s",
     "released_velocity_mps", "released_passed",
     "min_ttc_s", "ttc_p1_s", "min_pet_s", "pet_under_1s", "pet_samples", "min_distance_m",
 )
@@ -86,7 +90,7 @@ def _upper_bound_of(config: MiVeCCConfig) -> float:
 
 #: Simulator counters behind the summary's per-period keys (:func:`counters`).
 COUNTERS: tuple[str, ...] = (
-    "exited", "collision_events", "collided", "sum_travel_velocity",
+    "exited", "collision_events", "collided", "released_flagged", "sum_travel_velocity",
     "sum_travel_velocity_no_wait", "sum_trip_time", "sum_wait_time", "sum_speed_samples",
     "vehicle_steps", "env_steps",
 )
@@ -134,6 +138,7 @@ def batch_summary(
         ),
         "collisions": now["collision_events"].astype(np.float64),
         "collided_vehicles": now["collided"].astype(np.float64),
+        "released_check_collisions": now["released_flagged"].astype(np.float64),
         "backlog": sim.queued.astype(np.float64),
         "in_network": sim.in_network.astype(np.float64),
         "arrived": sim.arrived.astype(np.float64),
@@ -153,7 +158,7 @@ def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
     infos every step, where the array version's many small numpy calls cost more than the
     rest of the infos together.
     """
-    exited, collision_events, collided, sum_v, sum_v_no_wait, sum_trip, sum_wait, \
+    exited, collision_events, collided, flagged, sum_v, sum_v_no_wait, sum_trip, sum_wait, \
         sum_speed, vehicle_steps, env_steps = (getattr(sim, name).item(env)
                                                for name in COUNTERS)
     sim_time = env_steps * sim.config.dt_s
@@ -168,6 +173,7 @@ def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
         "throughput_vph": exited * 3600.0 / sim_time if sim_time > 0 else 0.0,
         "collisions": float(collision_events),
         "collided_vehicles": float(collided),
+        "released_check_collisions": float(flagged),
         # sim.queued / in_network / arrived of one environment (without their (B,) sums)
         "backlog": float(sum(sim.arrivals.queued[env].tolist())),
         "in_network": float(np.count_nonzero(sim.active[env])),

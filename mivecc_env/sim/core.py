@@ -34,6 +34,7 @@ from mivecc_env.sim import (
     controllers,
     edge_selection,
     end_node,
+    released_check,
     sections,
     signals,
     step_kernels,
@@ -134,6 +135,7 @@ class Simulator:
         self.exited = np.zeros(b, dtype=np.int64)
         self.collided = np.zeros(b, dtype=np.int64)  # vehicles removed by collision
         self.collision_events = np.zeros(b, dtype=np.int64)
+        self.released_flagged = np.zeros(b, dtype=np.int64)  # sim/released_check.py
         # trip statistics of exited vehicles
         self.sum_travel_velocity = np.zeros(b)  # path / (exit - arrival) [m/s]
         self.sum_travel_velocity_no_wait = np.zeros(b)  # path / (exit - entry) [m/s]
@@ -181,7 +183,8 @@ class Simulator:
         self._sv_last[envs] = 0.0  # released-model records (stale_action)
         self._closer_last[envs] = 0.0
         self.start_step[envs] = self.step_count
-        for name in ("next_vid", "exited", "collided", "collision_events", "sum_travel_velocity",
+        for name in ("next_vid", "exited", "collided", "collision_events", "released_flagged",
+                     "sum_travel_velocity",
                      "sum_travel_velocity_no_wait", "sum_trip_time", "sum_wait_time",
                      "sum_speed_samples", "vehicle_steps"):
             getattr(self, name)[envs] = 0
@@ -492,6 +495,8 @@ class Simulator:
         if pairs.size == 0:
             return
         b = self.batch_size
+        self.released_flagged += released_check.flagged_count(
+            self.network, self.config, self.active, self.lane, self.s, self._prev_s)
         env_of_pair = view.env[pairs[:, 0]]
         events.collision_events = np.bincount(env_of_pair, minlength=b)
         self.collision_events += events.collision_events
