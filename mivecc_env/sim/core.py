@@ -362,8 +362,68 @@ class Simulator:
                              f"{self.config.control!r}")
         c, view = self.config, self._view
         flat = view.vehicle
-        s, v = self.s.ravel()[flat], self.v.ravel()[flat]
         lane = view.lane
+        moved = self._move_compiled(view, edge_accel, cloud_accel, raw_edge)
+        if moved is not None:
+            s, v, s_new, out = moved
+        else:
+            s, v, s_new, out = self._move(view, edge_accel, cloud_accel, signal_phase, raw_edge)
+        t0 = self.env_time_s  # (B,) each environment's own clock
+        t1 = t0 + c.dt_s
+        self._prev_s = (flat, s)
+
+        events = self._no_events()
+        self.passing.record(view.env, lane, s, s_new, self.t_enter.ravel()[flat], t0, c.dt_s)
+        self.near_miss.record_step(view, v, s_new, out, t0, c.dt_s)
+        if out.any():
+            length = self.network.lane_length[lane]
+            self._record_exits(view, out, s, s_new, length, t0, t1, events)
+        self._remove_collisions(view, s_new, out, events)
+
+        self.step_count += 1
+        self._enter_vehicles(t1, events)
+        self.last_events = events
+        self._refresh_view()
+        return events
+
+    def _move_compiled(
+        self, view: VirtualLaneView, edge_accel: FloatArray | None,
+        cloud_accel: FloatArray | None, raw_edge: NDArray[np.bool_] | None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]] | None:
+        """:meth:`_move` by the compiled kernel where the model is the plain unsignalized one
+        (no released-code rules, float64 actions); None elsewhere."""
+        c = self.config
+        if (c.control != "unsignalized" or self.controller is not None or c.header_rule
+                or c.sections or c.speed_reset or c.stale_action or c.same_lane_rule
+                or c.accel_record == "commanded"):
+            return None
+        edge = None if edge_accel is None or c.scheme == "E" else edge_accel
+        cloud = None if cloud_accel is None or c.scheme != "EEC" else cloud_accel
+        if any(x is not None and x.dtype != np.float64 for x in (edge, cloud)):
+            return None  # e.g. float32 actions: the reference's mixed-precision arithmetic
+        if not all(x.flags.c_contiguous for x in (self.s, self.v, self.a)):
+            return None  # the kernel writes through flat views
+        raw = None if raw_edge is None or edge is None else np.asarray(raw_edge, dtype=bool)
+        safety = self._safety
+        return step_kernels.move(
+            view.vehicle, view.env, view.lane, safety.sv, safety.d_front, safety.d_back,
+            None if edge is None else edge.ravel(), None if cloud is None else cloud.ravel(),
+            raw, (self.s.ravel(), self.v.ravel(), self.a.ravel()), self.network.lane_length,
+            (self.sum_speed_samples, self.vehicle_steps), c,
+        )
+
+    def _move(
+        self, view: VirtualLaneView, edge_accel: FloatArray | None,
+        cloud_accel: FloatArray | None, signal_phase: IntArray | None,
+        raw_edge: NDArray[np.bool_] | None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]]:
+        """Accelerations, motion and the state update of every view vehicle (numpy path).
+
+        Returns (s before, v before, s after, exited) in view order.
+        """
+        c = self.config
+        flat, lane = view.vehicle, view.lane
+        s, v = self.s.ravel()[flat], self.v.ravel()[flat]
         if c.control == "signalized":
             accel = signals.signalized_accel(self, view, s, v)
             self.signal_phases.step(view, s, signal_phase)
@@ -379,29 +439,12 @@ class Simulator:
             a_applied = np.where(v_new == v, 0.0, accel)
         if c.speed_reset and c.control != "signalized":
             v_new = sections.apply_speed_reset(self.network, c, lane, s_new, v_new)
-        t0 = self.env_time_s  # (B,) each environment's own clock
-        t1 = t0 + c.dt_s
-        self._prev_s = (flat, s)
         self.s.ravel()[flat] = s_new
         self.v.ravel()[flat] = v_new
         self.a.ravel()[flat] = a_applied
         self.sum_speed_samples += np.bincount(view.env, v_new, minlength=self.batch_size)
         self.vehicle_steps += np.bincount(view.env, minlength=self.batch_size)
-
-        events = self._no_events()
-        length = self.network.lane_length[lane]
-        out = s_new >= length
-        self.passing.record(view.env, lane, s, s_new, self.t_enter.ravel()[flat], t0, c.dt_s)
-        self.near_miss.record_step(view, v, s_new, out, t0, c.dt_s)
-        if out.any():
-            self._record_exits(view, out, s, s_new, length, t0, t1, events)
-        self._remove_collisions(view, s_new, out, events)
-
-        self.step_count += 1
-        self._enter_vehicles(t1, events)
-        self.last_events = events
-        self._refresh_view()
-        return events
+        return s, v, s_new, s_new >= self.network.lane_length[lane]
 
     def _unsignalized_accel(
         self, view: VirtualLaneView, s: FloatArray, v: FloatArray,

@@ -352,3 +352,102 @@ def advance_arrivals(
     if not HAVE_NUMBA:
         return None
     return int(_advance_arrivals(times, generated, arrived, now, need))
+
+
+@njit
+def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_all, a_all,
+          lane_length, speed_sum, steps_sum, eta, sensible, entry_accel, gate, use_gate, omega,
+          a_max, v_lo, v_hi, dt):  # pragma: no cover
+    """Rule, fusion and motion of every view vehicle (the reference's operations in order)."""
+    n = vehicle.size
+    s_old = np.empty(n, np.float64)
+    v_old = np.empty(n, np.float64)
+    s_new = np.empty(n, np.float64)
+    out = np.empty(n, np.bool_)
+    speed = np.zeros(speed_sum.size, np.float64)
+    count = np.zeros(steps_sum.size, np.int64)
+    has_edge = edge.size > 0
+    has_cloud = cloud.size > 0
+    has_raw = raw.size > 0
+    for i in range(n):
+        k = vehicle[i]
+        s = s_all[k]
+        v = v_all[k]
+        ratio = sv[i] / eta
+        a = ratio if (d_front[i] <= d_back[i]) == sensible else np.abs(ratio)
+        if entry_accel != 0.0 and s == 0.0:
+            a = entry_accel
+        if has_edge:
+            e = edge[k]
+            valid = not np.isnan(e)
+            use = valid and (not use_gate or sv[i] > gate)
+            ev = e if use else 0.0
+            if use and ev * a > 0:
+                a = ev if ev >= a else a
+            if has_raw and raw[env[i]] and valid:
+                a = e
+        if has_cloud:
+            cl = cloud[k]
+            if not np.isnan(cl):
+                a = (1.0 - omega) * a + omega * cl
+        a = a if a > -a_max else -a_max
+        a = a if a < a_max else a_max
+        lo = (v_lo - v) / dt
+        hi = (v_hi - v) / dt
+        a = a if a > lo else lo
+        a = a if a < hi else hi
+        sn = s + v * dt + 0.5 * a * dt * dt
+        vn = v + a * dt
+        vn = vn if vn > v_lo else v_lo
+        vn = vn if vn < v_hi else v_hi
+        s_old[i] = s
+        v_old[i] = v
+        s_new[i] = sn
+        s_all[k] = sn
+        v_all[k] = vn
+        a_all[k] = a
+        b = env[i]
+        speed[b] += vn
+        count[b] += 1
+        out[i] = sn >= lane_length[lane[i]]
+    for b in range(speed_sum.size):
+        speed_sum[b] += speed[b]
+        steps_sum[b] += count[b]
+    return s_old, v_old, s_new, out
+
+
+_NO_FLOAT = np.zeros(0, dtype=np.float64)
+_NO_BOOL = np.zeros(0, dtype=np.bool_)
+
+
+def move(
+    vehicle: NDArray[np.int64], env: NDArray[np.int64], lane: NDArray[np.int64],
+    sv: NDArray[np.float64], d_front: NDArray[np.float64], d_back: NDArray[np.float64],
+    edge: NDArray[np.float64] | None, cloud: NDArray[np.float64] | None,
+    raw: NDArray[np.bool_] | None, state: tuple[NDArray[np.float64], ...],
+    lane_length: NDArray[np.float64], sums: tuple[NDArray[np.float64], NDArray[np.int64]],
+    config: MiVeCCConfig,
+) -> tuple[NDArray[np.float64], ...] | None:
+    """One step of the plain unsignalized model for every view vehicle, compiled.
+
+    ``end_accel`` (+ ``entry_action``), ``fuse`` (edge, raw edge, cloud, clip) and
+    ``bounded_motion`` per vehicle with the reference's IEEE operations in the same order;
+    writes the new position, velocity and applied acceleration into ``state`` = the flat
+    (s, v, a) arrays and adds the per-environment speed sum and vehicle count into ``sums``.
+    ``edge`` / ``cloud``: flat (B * capacity,) actions (NaN: none) or None; ``raw``: (B,) or
+    None. Returns (s before, v before, s after, exited) per view vehicle, or None when numba
+    is missing. The caller checks that no rule outside these applies.
+    """
+    if not HAVE_NUMBA:
+        return None
+    c = config
+    gate = c.edge_sv_gate
+    s_all, v_all, a_all = state
+    return _move(
+        vehicle, env, lane, sv, d_front, d_back,
+        _NO_FLOAT if edge is None else edge, _NO_FLOAT if cloud is None else cloud,
+        _NO_BOOL if raw is None else raw, s_all, v_all, a_all, lane_length, sums[0], sums[1],
+        float(c.eta), c.end_rule == "sensible", float(c.entry_accel_mps2),
+        0.0 if gate is None else float(gate), gate is not None, float(c.omega),
+        float(c.a_max_mps2), float(c.velocity_floor_mps), float(c.v_max_mps), float(c.dt_s),
+    )

@@ -91,11 +91,11 @@ def _points(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, win
         if q > qmax or q < 0:
             ok = False
         keys[j] = (group[j] << shift_g) | (q << ibits) | j
-    return vehicle, env, v_lane, v_s, group[:size], pos[:size], src[:size], keys, ok
+    return vehicle, env, v_lane, v_s, pos[:size], src[:size], keys, ok
 
 
 @njit
-def _neighbours(keys, group, pos, src, n, v_s, imask):  # pragma: no cover
+def _neighbours(keys, pos, src, n, v_s, imask, shift_g):  # pragma: no cover
     """Pass 2: sorted point arrays, runs, front/back points and own-lane neighbours."""
     size = keys.size
     g_s = np.empty(size, np.int64)
@@ -103,50 +103,58 @@ def _neighbours(keys, group, pos, src, n, v_s, imask):  # pragma: no cover
     s_s = np.empty(size, np.int64)
     own = np.empty(size, np.bool_)
     own_point = np.empty(n, np.int64)
-    for r in range(size):
-        j = keys[r] & imask
-        g_s[r] = group[j]
-        p_s[r] = pos[j]
-        s_s[r] = src[j]
-        own[r] = j < n
-        if j < n:
-            own_point[j] = r
     run_start = np.empty(size, np.int64)
     run_end = np.empty(size, np.int64)
-    start = 0
-    for r in range(size + 1):
-        if r == size or (r > 0 and g_s[r] != g_s[r - 1]):
-            for t in range(start, r):
-                run_start[t] = start
-                run_end[t] = r
-            start = r
     front = np.empty(n, np.int64)
     back = np.empty(n, np.int64)
     d_front = np.empty(n, np.float64)
     d_back = np.empty(n, np.float64)
-    leader = np.full(n, -1, np.int64)
-    follower = np.full(n, -1, np.int64)
-    for i in range(n):
-        r = own_point[i]
-        if r + 1 < run_end[r]:
-            front[i] = r + 1
-            d_front[i] = p_s[r + 1] - v_s[i]
+    leader = np.empty(n, np.int64)
+    follower = np.empty(n, np.int64)
+    start = 0
+    prev_own = -1  # last own point of the current run
+    for r in range(size):
+        j = keys[r] & imask
+        g = keys[r] >> shift_g  # the group: the key's top bits
+        g_s[r] = g
+        p_s[r] = pos[j]
+        s_s[r] = src[j]
+        if r > 0 and g != g_s[r - 1]:
+            for t in range(start, r):
+                run_end[t] = r
+            start = r
+            prev_own = -1
+        run_start[r] = start
+        if j < n:
+            own[r] = True
+            own_point[j] = r
+            leader[j] = -1
+            if prev_own >= 0:
+                behind = s_s[prev_own]
+                leader[behind] = j
+                follower[j] = behind
+            else:
+                follower[j] = -1
+            prev_own = r
         else:
-            front[i] = -1
-            d_front[i] = np.inf
-        if r - 1 >= run_start[r]:
-            back[i] = r - 1
-            d_back[i] = v_s[i] - p_s[r - 1]
-        else:
-            back[i] = -1
-            d_back[i] = np.inf
-    prev = -1
+            own[r] = False
+    for t in range(start, size):
+        run_end[t] = size
     for r in range(size):
         if own[r]:
-            if prev >= 0 and g_s[prev] == g_s[r]:
-                leader[s_s[prev]] = s_s[r]
-                follower[s_s[r]] = s_s[prev]
-            prev = r
+            i = s_s[r]
+            if r + 1 < run_end[r]:
+                front[i] = r + 1
+                d_front[i] = p_s[r + 1] - v_s[i]
+            else:
+                front[i] = -1
+                d_front[i] = np.inf
+            if r - 1 >= run_start[r]:
+                back[i] = r - 1
+                d_back[i] = v_s[i] - p_s[r - 1]
+            else:
+                back[i] = -1
+                d_back[i] = np.inf
     return (g_s, p_s, s_s, own, run_start, run_end, own_point, front, back, d_front, d_back,
             leader, follower)
 
@@ -175,7 +183,7 @@ def build_view_fast(
     ibits = _bits(bsz * cap * (1 + n_col))
     if qbits > 32 or _bits(n_groups - 1) + qbits + ibits > 63:
         return None
-    vehicle, env, v_lane, v_s, group, pos, src, keys, ok = _points(
+    vehicle, env, v_lane, v_s, pos, src, keys, ok = _points(
         active, lane, s, network.lane_cp_s, network.lane_cp_other_lane,
         network.lane_cp_other_s, float(window_m), float(clear_m),
         float(network.segment_length_m), float(network.lane_offset_m),
@@ -187,7 +195,7 @@ def build_view_fast(
     keys.sort()
     imask = (1 << ibits) - 1
     (g_s, p_s, s_s, own, run_start, run_end, own_point, front, back, d_front, d_back,
-     leader, follower) = _neighbours(keys, group, pos, src, vehicle.size, v_s, imask)
+     leader, follower) = _neighbours(keys, pos, src, vehicle.size, v_s, imask, qbits + ibits)
     return VirtualLaneView(
         vehicle=vehicle, env=env, lane=v_lane, s=v_s, point_group=g_s, point_pos=p_s,
         point_vehicle=s_s, point_own=own, point_run_start=run_start, point_run_end=run_end,

@@ -130,3 +130,34 @@ def test_empty_network_view() -> None:
     sim = Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=3)
     args = (sim.network, 10.0, 5.0, sim.active, sim.lane, sim.s)
     _assert_same_view(build_view(*args), build_view_reference(*args))
+
+
+@pytest.mark.parametrize("cfg", [
+    MiVeCCConfig(rows=2, cols=2, density_vplh=1800, scheme="EEC", edge_sv_gate=0.0,
+                 end_rule="literal", entry_accel_mps2=2.0),
+    MiVeCCConfig(rows=1, cols=2, density_vplh=1200, scheme="EE"),
+])
+def test_compiled_motion_matches_reference_with_raw_edge_and_float32(
+    cfg: MiVeCCConfig, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The compiled rule/fusion/motion kernel: SV gate, literal rule, entry action, raw edge
+    actions per environment, and float32 actions (which take the reference's own path)."""
+    fast = Simulator(cfg, batch_size=3, seed=4)
+    with monkeypatch.context() as m:
+        _no_kernels(m)
+        ref = Simulator(cfg, batch_size=3, seed=4)
+    rng_f, rng_r = np.random.default_rng(9), np.random.default_rng(9)
+    for step in range(300):
+        for sim, rng in ((fast, rng_f), (ref, rng_r)):
+            edge, cloud = _actions(sim, rng, cfg.scheme)
+            raw = rng.random(3) < 0.3
+            if step % 3 == 0:
+                edge = edge.astype(np.float32)
+            with monkeypatch.context() as m:
+                if sim is ref:
+                    _no_kernels(m)
+                sim.step(edge, cloud, raw_edge=raw)
+        for name in STATE:
+            np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name),
+                                          err_msg=f"{name} at step {step}")
+    assert fast.in_network.sum() > 0
