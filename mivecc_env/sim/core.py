@@ -538,8 +538,11 @@ class Simulator:
         if pairs.size == 0:
             return
         b = self.batch_size
-        self.released_flagged += released_check.flagged_count(
-            self.network, self.config, self.active, self.lane, self.s, self._prev_s)
+        # Only environments with a strict event can have a flagged vehicle: check just those.
+        hit_envs = np.unique(view.env[pairs[:, 0]])
+        self.released_flagged[hit_envs] += released_check.flagged_count(
+            self.network, self.config, self.active[hit_envs], self.lane[hit_envs],
+            self.s[hit_envs], _rows_of_slots(self._prev_s, hit_envs, b, self.capacity))
         env_of_pair = view.env[pairs[:, 0]]
         events.collision_events = np.bincount(env_of_pair, minlength=b)
         self.collision_events += events.collision_events
@@ -632,6 +635,21 @@ class Simulator:
             "vid": self.vid[env, m], "lane": lane, "s": s, "v": self.v[env, m],
             "a": self.a[env, m], "xy": self.network.xy(lane, s),
         }
+
+
+def _rows_of_slots(
+    prev_s: tuple[IntArray, FloatArray] | None, envs: IntArray, batch: int, capacity: int
+) -> tuple[IntArray, FloatArray] | None:
+    """``prev_s`` (flat slots of a (batch, capacity) layout, positions) restricted to the rows
+    ``envs`` (sorted) and renumbered for the (len(envs), capacity) layout of those rows."""
+    if prev_s is None:
+        return None
+    slots, s_old = prev_s
+    row = np.full(batch, -1, dtype=np.int64)
+    row[envs] = np.arange(envs.size)
+    r = row[slots // capacity]
+    keep = r >= 0
+    return r[keep] * capacity + slots[keep] % capacity, s_old[keep]
 
 
 def _checked_densities(

@@ -161,3 +161,24 @@ def test_compiled_motion_matches_reference_with_raw_edge_and_float32(
             np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name),
                                           err_msg=f"{name} at step {step}")
     assert fast.in_network.sum() > 0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_released_check_on_the_rows_with_events_equals_the_whole_batch(seed: int) -> None:
+    """``Simulator`` runs the released check only on the environments with a strict event;
+    per environment that gives what a check of the whole batch gives."""
+    from mivecc_env.sim import released_check
+    from mivecc_env.sim.core import _rows_of_slots
+
+    cfg = MiVeCCConfig(rows=2, cols=2)
+    sim = _crowded(cfg, batch=5, per_env=60, seed=seed)
+    rng = np.random.default_rng(seed)
+    slots = np.flatnonzero(sim.active)
+    prev = (slots, np.maximum(sim.s.ravel()[slots] - rng.uniform(0, 2, slots.size), 0.0))
+    whole = released_check.flagged_count(sim.network, cfg, sim.active, sim.lane, sim.s, prev)
+    assert whole.sum() > 0
+    envs = np.array([0, 2, 3])
+    part = released_check.flagged_count(
+        sim.network, cfg, sim.active[envs], sim.lane[envs], sim.s[envs],
+        _rows_of_slots(prev, envs, 5, sim.capacity))
+    np.testing.assert_array_equal(part, whole[envs])
