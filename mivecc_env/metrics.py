@@ -33,7 +33,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from mivecc_env import summary_kernel
 from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import near_miss
 
 if TYPE_CHECKING:
     from mivecc_env.sim.core import Simulator
@@ -102,7 +104,7 @@ def counters(sim: Simulator) -> dict[str, np.ndarray]:
 
 
 def batch_summary(
-    sim: Simulator, since: dict[str, np.ndarray] | None = None
+    sim: Simulator, since: dict[str, np.ndarray] | None = None, use_kernel: bool | None = None
 ) -> dict[str, np.ndarray]:
     """Metrics of every environment of a simulator since its own last reset.
 
@@ -112,10 +114,16 @@ def batch_summary(
             keys then cover only the steps since (a training chunk of a continuous run); the
             backlog, vehicle counts, released-style velocity and near-miss keys still cover
             the whole episode.
+        use_kernel: compute with the compiled :mod:`mivecc_env.summary_kernel` (one call,
+            bit-identical) or the numpy code below (the reference); default: the kernel when
+            numba is available.
 
     Returns:
-        ``SUMMARY_KEYS`` -> (B,) float64 arrays (environment ``b`` at index ``b``).
+        ``SUMMARY_KEYS`` -> (B,) float64 arrays (environment ``b`` at index ``b``; with the
+        kernel, the rows of one fresh (23, B) array).
     """
+    if summary_kernel.HAVE_NUMBA if use_kernel is None else use_kernel:
+        return dict(zip(SUMMARY_KEYS, _summary_table(sim, since), strict=True))
     now = {name: getattr(sim, name) for name in COUNTERS}
     if since is not None:
         now = {name: now[name] - since[name] for name in COUNTERS}
@@ -149,42 +157,30 @@ def batch_summary(
     }
 
 
+def _summary_table(sim: Simulator, since: dict[str, np.ndarray] | None) -> np.ndarray:
+    """(23, B) summary of every environment, rows in ``SUMMARY_KEYS`` order (compiled)."""
+    now = {name: getattr(sim, name) for name in COUNTERS}
+    if since is not None:
+        now = {name: now[name] - since[name] for name in COUNTERS}
+    nm, passing, arrivals = sim.near_miss, sim.passing, sim.arrivals
+    return summary_kernel.fill(
+        np.empty((summary_kernel.N_KEYS, sim.batch_size)), now, sim.config.dt_s,
+        _upper_bound_of(sim.config), sim.active, arrivals.arrived, arrivals.entered,
+        passing.count, passing.sum_time_s, passing.sum_length_m, nm.min_ttc_s, nm.ttc_hist,
+        nm.min_pet_s, nm.pet_samples, nm.pet_under, nm.min_distance_m,
+        near_miss.TTC_PERCENTILE, near_miss.TTC_BIN_S)
+
+
 def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
     """Metrics of environment ``env`` of a simulator since its last reset (floats).
 
-    The values of :func:`batch_summary` (``float(batch_summary(sim)[key][env])``, bit for bit:
-    the same IEEE operations on Python floats, compared in ``tests/sim/test_metrics.py``),
-    computed from that environment's scalars only: the ParallelEnv puts this summary in its
-    infos every step, where the array version's many small numpy calls cost more than the
-    rest of the infos together.
+    ``float(batch_summary(sim)[key][env])`` for every key; with numba one compiled call (the
+    ParallelEnv puts this summary in its infos every step, where the numpy reference's many
+    small calls cost more than the rest of the infos together).
     """
-    exited, collision_events, collided, flagged, sum_v, sum_v_no_wait, sum_trip, sum_wait, \
-        sum_speed, vehicle_steps, env_steps = (getattr(sim, name).item(env)
-                                               for name in COUNTERS)
-    sim_time = env_steps * sim.config.dt_s
-    n = float(max(exited, 1))
-    has = exited > 0
-    return {
-        "avg_travel_velocity_mps": sum_v / n if has else 0.0,
-        "avg_travel_velocity_no_wait_mps": sum_v_no_wait / n if has else 0.0,
-        "upper_bound_mps": _upper_bound_of(sim.config),
-        "mean_speed_mps": sum_speed / max(vehicle_steps, 1),
-        "throughput": float(exited),
-        "throughput_vph": exited * 3600.0 / sim_time if sim_time > 0 else 0.0,
-        "collisions": float(collision_events),
-        "collided_vehicles": float(collided),
-        "released_check_collisions": float(flagged),
-        # sim.queued / in_network / arrived of one environment (without their (B,) sums)
-        "backlog": float(sum(sim.arrivals.queued[env].tolist())),
-        "in_network": float(np.count_nonzero(sim.active[env])),
-        "arrived": float(sum(sim.arrivals.arrived[env].tolist())),
-        "mean_trip_time_s": sum_trip / n if has else 0.0,
-        "mean_wait_time_s": sum_wait / n if has else 0.0,
-        "sim_time_s": float(sim_time),
-        "released_velocity_mps": float(sim.passing.velocity_mps()[env]),
-        "released_passed": float(sim.passing.count.item(env)),
-        **sim.near_miss.summary(env),
-    }
+    if summary_kernel.HAVE_NUMBA:
+        return dict(zip(SUMMARY_KEYS, _summary_table(sim, None)[:, env].tolist(), strict=True))
+    return {key: float(value[env]) for key, value in batch_summary(sim).items()}
 
 
 def released_and_near_miss(sim: Simulator) -> dict[str, np.ndarray]:
