@@ -28,8 +28,8 @@ IntArray = NDArray[np.int64]
 
 @njit
 def _fill(out, exited, collision_events, collided, flagged, sum_v, sum_v_no_wait, sum_trip,
-          sum_wait, sum_speed, vehicle_steps, env_steps, dt, upper, active, arrived, entered, passed,
-          pass_time, pass_length, min_ttc, hist, min_pet, pet_samples, pet_under, min_dist,
+          sum_wait, sum_speed, vehicle_steps, env_steps, dt, upper, active, arrived, entered,
+          passed, pass_time, pass_length, min_ttc, hist, min_pet, pet_samples, pet_under, min_dist,
           q, bin_s):  # pragma: no cover - compiled; compared with the numpy reference
     n_bins = hist.shape[1]
     for e in range(out.shape[1]):
