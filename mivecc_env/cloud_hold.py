@@ -31,7 +31,8 @@ class HeldCloudCommands:
     """Per-vehicle cloud commands between two decisions (see the module docstring).
 
     Args:
-        shape: ``(B, capacity)`` of the simulator's vehicle slots.
+        shape: ``(B, capacity)`` of the simulator's vehicle slots (it follows the simulator
+            when that adds slots).
     """
 
     def __init__(self, shape: tuple[int, int]) -> None:
@@ -55,6 +56,10 @@ class HeldCloudCommands:
             vid: (B, capacity) the simulator's vehicle ids per slot (-1: empty slot).
             population_slots: flat slot indices of the vehicles in the cloud's population.
         """
+        grow = vid.shape[1] - self._vid.shape[1]
+        if grow > 0:  # the simulator added slots at the end of its arrays
+            self._accel = np.pad(self._accel, ((0, 0), (0, grow)), constant_values=np.nan)
+            self._vid = np.pad(self._vid, ((0, 0), (0, grow)), constant_values=-1)
         if decides.any():
             self._accel[decides] = np.nan if fresh is None else fresh[decides]
             self._vid[decides] = vid[decides]

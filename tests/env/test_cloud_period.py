@@ -88,3 +88,15 @@ def test_picked_vehicles_keep_their_command():
         free = same & population[picked] & (v > c.v_min_mps + 1e-9) & (v < c.v_max_mps - 1e-9)
         assert free.sum() > 10
         np.testing.assert_allclose(a[free], command[real][free], atol=1e-12)
+
+
+def test_held_commands_follow_the_simulator_growing():
+    """The simulator starts with few slots and adds more as the network fills."""
+    env = BatchedMiVeCCEnv(batch_size=1, rows=3, cols=3, density=2100, scheme="EEC",
+                           cloud_period=3)
+    start = env.sim.active.shape[1]
+    env.reset(seed=0)
+    for _ in range(600):
+        env.step(None, _actions(env, 1.0))
+    assert env.sim.active.shape[1] > start
+    assert env.summary()["in_network"][0] > 0
