@@ -411,7 +411,7 @@ class BatchedMiVeCCEnv:
                                                    sim.s)  # the same view by default
             di = density_indicator(cview, c.di_n)
             self._cloud = cloud_graphs(sim.network, cview, di, v, a, b, c, self._cloud_pop)
-        edge_terms, cloud_terms = self._reward_terms(events)
+        edge_terms, cloud_terms, edge_reward, cloud_reward = self._reward_terms(events)
         steps = self.episode_steps
         edge, cloud = self._edge, self._cloud
         signal_obs = signal_reward = signal_terms = None
@@ -423,8 +423,8 @@ class BatchedMiVeCCEnv:
             edge_mask=None if edge is None else edge.mask,
             cloud_obs=None if cloud is None else cloud.obs[:, 0],
             cloud_mask=None if cloud is None else cloud.mask[:, 0],
-            edge_reward=_total(edge_terms),
-            cloud_reward=_total(cloud_terms),
+            edge_reward=edge_reward,
+            cloud_reward=cloud_reward,
             edge_terms=edge_terms,
             cloud_terms=cloud_terms,
             terminated=np.zeros(b, dtype=bool),
@@ -438,13 +438,30 @@ class BatchedMiVeCCEnv:
 
     def _reward_terms(
         self, events: StepEvents | None
-    ) -> tuple[dict[str, FloatArray], dict[str, FloatArray]]:
-        """Edge (B, n_edge) and cloud (B,) reward terms of the current state and events."""
+    ) -> tuple[dict[str, FloatArray], dict[str, FloatArray], FloatArray, FloatArray]:
+        """Edge (B, n_edge) and cloud (B,) reward terms of the current state and events, and
+        the rewards (their sums)."""
         c, sim, b, n = self.config, self.sim, self.batch_size, self.n_edge
         if events is None:
-            return ({k: np.zeros((b, n)) for k in REWARD_TERMS},
-                    {k: np.zeros(b) for k in REWARD_TERMS})
+            edge = {k: np.zeros((b, n)) for k in REWARD_TERMS}
+            cloud = {k: np.zeros(b) for k in REWARD_TERMS}
+            return edge, cloud, _total(edge), _total(cloud)
         view = sim.view
+        if reward_kernel.HAVE_NUMBA and c.edge_reward_scope != "decisions":
+            # One compiled call for the terms and sums below (bit-identical); only the SV sums
+            # of the decisions stay numpy's (its pairwise summation order).
+            sv_sum = vi = None
+            if self._edge is not None:
+                vi = self._edge.view_index.reshape(b * n, -1)
+                sv_sum = np.append(sim.safety.sv, 0.0)[vi].sum(axis=1)
+            edge_rows, cloud_rows = reward_kernel.terms(
+                view.env, self._area, self._cloud_reward_pop, self._v, c.reward_v_ref_mps, b, n,
+                events.collided_env, events.collided_area, events.collided_vehicles,
+                c.collision_penalty, sv_sum, vi, c.reward_sv_weight)
+            edge_rows = edge_rows.reshape(4, b, n)
+            return (dict(zip(REWARD_TERMS, edge_rows[:3], strict=True)),
+                    dict(zip(REWARD_TERMS, cloud_rows[:3], strict=True)),
+                    edge_rows[3], cloud_rows[3])
         count, vel_sum, env_count, env_vel = self._node_sums(view)
         count, vel_sum = count.reshape(b, n), vel_sum.reshape(b, n)
         hit = events.collided_area >= 0
@@ -470,7 +487,7 @@ class BatchedMiVeCCEnv:
             "reward_velocity": env_vel / np.maximum(env_count, 1),
             "reward_collision": -c.collision_penalty * events.collided_vehicles.astype(np.float64),
         }
-        return edge, cloud
+        return edge, cloud, _total(edge), _total(cloud)
 
     def _node_sums(self, view: VirtualLaneView) -> tuple[NDArray[np.int64], FloatArray,
                                                           NDArray[np.int64], FloatArray]:
