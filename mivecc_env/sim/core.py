@@ -107,6 +107,9 @@ class Simulator:
         self.batch_size = batch_size
         self._initial_capacity = max(8, int(capacity))
         self.densities = _checked_densities(config, batch_size, densities)
+        # the released collision check's config (built once, not on every collision step)
+        self._check_config = (config if config.section_entry_lag
+                              else config.replace(section_entry_lag=True))
         self.arrivals = ArrivalProcess(
             batch_size, self.network.n_lanes, self.densities, config.min_headway_s
         )
@@ -541,7 +544,7 @@ class Simulator:
         # Only environments with a strict event can have a flagged vehicle: check just those.
         hit_envs = np.unique(view.env[pairs[:, 0]])
         self.released_flagged[hit_envs] += released_check.flagged_count(
-            self.network, self.config, self.active[hit_envs], self.lane[hit_envs],
+            self.network, self._check_config, self.active[hit_envs], self.lane[hit_envs],
             self.s[hit_envs], _rows_of_slots(self._prev_s, hit_envs, b, self.capacity))
         env_of_pair = view.env[pairs[:, 0]]
         events.collision_events = np.bincount(env_of_pair, minlength=b)
