@@ -167,6 +167,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         self.state_space = spaces.Box(-1.0, 1.0, (c.k_cloud, c.k_cloud, 3), dtype=np.float32)
         # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
         self._a_limit = c.a_max_mps2 + 1e-6
+        self._column_shapes = [(a, (self._k[a],)) for a in (*self.edge_agents, CLOUD_AGENT)]
+        self._n_edge_columns = n * c.k_edge
         self._last: BatchStep | None = None
 
     # ------------------------------------------------------------------------------------
@@ -275,6 +277,9 @@ class MiVeCCParallelEnv(ParallelEnv):
             raise ValueError(
                 f"actions: unknown agents {unknown}; agents are {self.possible_agents}"
             )
+        every = self._every_column(actions)
+        if every is not None:
+            return every
         edge_cols = cloud_cols = None
         edges = [a for a in actions if a in self._edge_index]
         if edges:
@@ -291,6 +296,29 @@ class MiVeCCParallelEnv(ParallelEnv):
                 cloud = self._check_action(CLOUD_AGENT, action)
             cloud_cols = cloud[None]
         return edge_cols, cloud_cols
+
+    def _every_column(
+        self, actions: Mapping[str, Any]
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The usual case in one conversion and one range check: every edge agent and the
+        cloud act with numpy arrays of shape (K,), all inside the box. ``None`` otherwise (the
+        general path then applies the same rule per agent and names any error)."""
+        parts = []
+        for agent, shape in self._column_shapes:
+            action = actions.get(agent)
+            if type(action) is not np.ndarray or action.shape != shape:
+                return None
+            parts.append(action)
+        try:
+            flat = np.concatenate(parts, dtype=np.float64)
+        except (TypeError, ValueError):
+            return None
+        lim = self._a_limit
+        # NaN compares False (and min / max propagate it): NaN and inf take the general path.
+        if not (flat.min() >= -lim and flat.max() <= lim):
+            return None
+        n = self._n_edge_columns
+        return flat[:n].reshape(1, len(self.edge_agents), -1), flat[None, n:]
 
     def _phases(self, actions: Mapping[str, Any]) -> np.ndarray | None:
         """(1, n_int) phases of the signal agents (-1 for those left out), ``None`` if none."""
