@@ -381,11 +381,11 @@ class BatchedMiVeCCEnv:
 
     def _commands(self, graphs: StateGraphs, action: FloatArray) -> FloatArray:
         """(B, capacity) per-slot command (NaN where none) from per-column actions."""
-        cmd = np.full(self.sim.active.shape, np.nan)
-        slots = graphs.slot
-        real = slots >= 0
-        cmd.ravel()[slots[real]] = action[real]
-        return cmd
+        b, capacity = self.sim.active.shape
+        # One spare element at the end takes the padded columns (slot -1) in a single scatter.
+        flat = np.full(b * capacity + 1, np.nan)
+        flat[graphs.slot] = action
+        return flat[:-1].reshape(b, capacity)
 
     # ------------------------------------------------------------------------------------
     def _observe_and_pack(self, events: StepEvents | None) -> BatchStep:

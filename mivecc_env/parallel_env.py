@@ -250,7 +250,7 @@ class MiVeCCParallelEnv(ParallelEnv):
         self._last = out = self.batched.step_commands(edge_cols, cloud_cols, phases)
         agents = self.agents
         signal_rewards = [] if out.signal_reward is None else out.signal_reward[0].tolist()
-        rewards = dict(zip(agents, [*out.edge_reward[0].tolist(), float(out.cloud_reward[0]),
+        rewards = dict(zip(agents, [*out.edge_reward[0].tolist(), out.cloud_reward.item(0),
                                     *signal_rewards], strict=True))
         truncated = bool(out.truncated[0])
         terminations = dict.fromkeys(agents, False)
