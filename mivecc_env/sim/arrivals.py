@@ -128,7 +128,8 @@ class ArrivalProcess:
         """
         now = np.asarray(now_s, dtype=np.float64)
         if step_kernels.HAVE_NUMBA:  # compiled: the same counts and the same draws per lane
-            now_b = np.ascontiguousarray(np.broadcast_to(now, (self.batch,)))
+            now_b = (now if now.shape == (self.batch,) and now.flags.c_contiguous
+                     else np.ascontiguousarray(np.broadcast_to(now, (self.batch,))))
             need = np.empty((self.batch, self.n_lanes), dtype=bool)
             while step_kernels.advance_arrivals(
                 self.times, self.generated, self.arrived, now_b, need

@@ -376,11 +376,26 @@ class Simulator:
         self._prev_s = (flat, s)
 
         events = self._no_events()
-        self.passing.record(view.env, lane, s, s_new, self.t_enter.ravel()[flat], t0, c.dt_s)
+        p = self.passing
+        if not self.t_enter.flags.c_contiguous or not step_kernels.record_passing(
+            view.env, lane, flat, s, s_new, self.t_enter.ravel(), p.mark_s, t0, c.dt_s,
+            (p.count, p.sum_time_s, p.sum_length_m),
+        ):
+            p.record(view.env, lane, s, s_new, self.t_enter.ravel()[flat], t0, c.dt_s)
         self.near_miss.record_step(view, v, s_new, out, t0, c.dt_s)
+        flat_ok = all(x.flags.c_contiguous for x in (self.active, self.t_arrive, self.t_enter))
         if out.any():
-            length = self.network.lane_length[lane]
-            self._record_exits(view, out, s, s_new, length, t0, t1, events)
+            n_out = None if not flat_ok else step_kernels.record_exits(
+                out, view.env, flat, lane, s, s_new, self.network.lane_length, t0, t1,
+                self.t_arrive.ravel(), self.t_enter.ravel(), self.active.ravel(),
+                (self.sum_travel_velocity, self.sum_travel_velocity_no_wait,
+                 self.sum_trip_time, self.sum_wait_time), self.exited,
+            )
+            if n_out is None:
+                length = self.network.lane_length[lane]
+                self._record_exits(view, out, s, s_new, length, t0, t1, events)
+            else:
+                events.exited = n_out
         self._remove_collisions(view, s_new, out, events)
 
         self.step_count += 1

@@ -451,3 +451,95 @@ def move(
         0.0 if gate is None else float(gate), gate is not None, float(c.omega),
         float(c.a_max_mps2), float(c.velocity_floor_mps), float(c.v_max_mps), float(c.dt_s),
     )
+
+
+@njit
+def _record_passing(env, lane, vehicle, s_old, s_new, t_enter_all, mark_s, t0, dt, count,
+                    sum_time, sum_length):  # pragma: no cover
+    bsz = count.size
+    n_b = np.zeros(bsz, np.int64)
+    time_b = np.zeros(bsz, np.float64)
+    length_b = np.zeros(bsz, np.float64)
+    for i in range(env.size):
+        mark = mark_s[lane[i]]
+        so, sn = s_old[i], s_new[i]
+        if so < mark and sn >= mark:
+            step = sn - so
+            frac = (mark - so) / (step if step >= 1e-12 else 1e-12)
+            frac = frac if frac > 0.0 else 0.0
+            frac = frac if frac < 1.0 else 1.0
+            e = env[i]
+            t_cross = t0[e] + frac * dt
+            n_b[e] += 1
+            time_b[e] += t_cross - t_enter_all[vehicle[i]]
+            length_b[e] += mark
+    for e in range(bsz):
+        count[e] += n_b[e]
+        sum_time[e] += time_b[e]
+        sum_length[e] += length_b[e]
+
+
+def record_passing(
+    env: NDArray[np.int64], lane: NDArray[np.int64], vehicle: NDArray[np.int64],
+    s_old: NDArray[np.float64], s_new: NDArray[np.float64], t_enter_all: NDArray[np.float64],
+    mark_s: NDArray[np.float64], t0: NDArray[np.float64], dt: float,
+    sums: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]],
+) -> bool:
+    """``PassingTimes.record`` compiled (``t_enter_all``: the flat (B * capacity,) entry
+    times, read at ``vehicle``; ``t0``: (B,) [s]); adds into ``sums`` = the accumulators
+    (count, sum_time_s, sum_length_m). False when numba is missing."""
+    if not HAVE_NUMBA:
+        return False
+    _record_passing(env, lane, vehicle, s_old, s_new, t_enter_all, mark_s, t0, float(dt),
+                    *sums)
+    return True
+
+
+@njit
+def _record_exits(out, env, vehicle, lane, s_old, s_new, lane_length, t0, t1, t_arrive,
+                  t_enter, active, sums, exited, n_out):  # pragma: no cover
+    # sums: (4, B) travel velocity, travel velocity without the wait, trip time, wait time
+    bsz = exited.size
+    part = np.zeros((4, bsz), np.float64)
+    for i in range(out.size):
+        if not out[i]:
+            continue
+        e = env[i]
+        k = vehicle[i]
+        length = lane_length[lane[i]]
+        step = s_new[i] - s_old[i]
+        frac = (length - s_old[i]) / (step if step >= 1e-12 else 1e-12)
+        frac = frac if frac > 0.0 else 0.0
+        frac = frac if frac < 1.0 else 1.0
+        t_exit = t0[e] + frac * (t1[e] - t0[e])
+        t_arr, t_ent = t_arrive[k], t_enter[k]
+        trip = t_exit - t_arr
+        part[0, e] += length / trip
+        part[1, e] += length / (t_exit - t_ent)
+        part[2, e] += trip
+        part[3, e] += t_ent - t_arr
+        n_out[e] += 1
+        active[k] = False
+    for e in range(bsz):
+        for r in range(4):
+            sums[r][e] += part[r, e]
+        exited[e] += n_out[e]
+
+
+def record_exits(
+    out: NDArray[np.bool_], env: NDArray[np.int64], vehicle: NDArray[np.int64],
+    lane: NDArray[np.int64], s_old: NDArray[np.float64], s_new: NDArray[np.float64],
+    lane_length: NDArray[np.float64], t0: NDArray[np.float64], t1: NDArray[np.float64],
+    t_arrive: NDArray[np.float64], t_enter: NDArray[np.float64], active: NDArray[np.bool_],
+    sums: tuple[NDArray[np.float64], ...], exited: NDArray[np.int64],
+) -> NDArray[np.int64] | None:
+    """``Simulator._record_exits`` compiled: trip sums per environment (``sums`` = the four
+    accumulators, added in view order as ``np.bincount`` does), ``exited`` counts, exited
+    slots made inactive (``t_arrive``/``t_enter``/``active`` flat). Returns the (B,) exits of
+    this step, or None when numba is missing."""
+    if not HAVE_NUMBA:
+        return None
+    n_out = np.zeros(exited.size, dtype=np.int64)
+    _record_exits(out, env, vehicle, lane, s_old, s_new, lane_length, t0, t1, t_arrive,
+                  t_enter, active, sums, exited, n_out)
+    return n_out

@@ -72,6 +72,9 @@ def test_trajectory_identical_with_and_without_kernels(
                                           err_msg=f"{name} at step {step}")
         np.testing.assert_array_equal(fast.safety.sv, ref.safety.sv)
         np.testing.assert_array_equal(fast.safety.ttc, ref.safety.ttc)
+        for name in ("count", "sum_time_s", "sum_length_m"):
+            np.testing.assert_array_equal(getattr(fast.passing, name),
+                                          getattr(ref.passing, name), err_msg=name)
     _assert_same_view(fast.view, ref.view)
     assert fast.in_network.sum() > 0
 
@@ -160,7 +163,10 @@ def test_compiled_motion_matches_reference_with_raw_edge_and_float32(
         for name in STATE:
             np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name),
                                           err_msg=f"{name} at step {step}")
-    assert fast.in_network.sum() > 0
+        for name in ("count", "sum_time_s", "sum_length_m"):
+            np.testing.assert_array_equal(getattr(fast.passing, name),
+                                          getattr(ref.passing, name), err_msg=name)
+    assert fast.in_network.sum() > 0 and fast.passing.count.sum() > 0
 
 
 @pytest.mark.parametrize("seed", range(3))
