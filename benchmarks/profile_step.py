@@ -56,6 +56,9 @@ PHASES = (
     ("    graph fill kernel (both graphs)", "graph_kernel.py", "_build"),
     ("    density indicator", "virtual_lane.py", "density_indicator"),
     ("    reward terms", "batched.py", "_reward_terms"),
+    ("  actions (ParallelEnv _columns)", "parallel_env.py", "_columns"),
+    ("  per-slot commands (_commands)", "batched.py", "_commands"),
+    ("  observation dict (ParallelEnv)", "parallel_env.py", "_observations"),
     ("  infos (ParallelEnv)", "parallel_env.py", "_infos"),
     ("    episode summary", "metrics.py", "episode_summary"),
 )

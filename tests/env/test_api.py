@@ -351,3 +351,27 @@ def test_gymnasium_edge_matches_parallel_env() -> None:
         assert not term and not pterm["edge_1"]
         assert trunc == (t == 49) == ptrunc["edge_1"]
         assert np.array_equal(info["mask"], pinfos["edge_1"]["mask"])
+
+
+def test_returned_observations_and_infos_are_not_changed_by_later_steps() -> None:
+    """Observations and masks are views of each step's fresh arrays and every action goes
+    through the fast (one concatenation) path here: what a step returned stays as it was."""
+    env = small_env(scheme="EEC")
+    obs, infos = env.reset(seed=3)
+    policy = random_policy(3)
+    kept = []
+    for t in range(60):
+        actions = policy(env, infos, t)
+        assert env._every_column(actions) is not None  # the one-concatenation path
+        obs, rewards, _, _, infos = env.step(actions)
+        if t % 10 == 9:
+            snapshot = ({a: o.copy() for a, o in obs.items()},
+                        {a: {k: np.array(v, copy=True) for k, v in i.items()}
+                         for a, i in infos.items()}, dict(rewards))
+            kept.append(((obs, infos, rewards), snapshot))
+    assert any(float(i["mask"].sum()) > 0 for i in infos.values())
+    for (obs, infos, rewards), (obs0, infos0, rewards0) in kept:
+        assert all(np.array_equal(obs[a], obs0[a]) for a in obs0)
+        assert all(np.array_equal(infos[a][k], infos0[a][k], equal_nan=True)
+                   for a in infos0 for k in infos0[a])
+        assert rewards == rewards0
