@@ -200,6 +200,58 @@ def lockstep(scene: types.ModuleType, density: float, seed: int, steps: int,
     return out
 
 
+def check_cloud_view(scene: types.ModuleType, states: int, vehicles: int = 120) -> int:
+    """Compare ``sim/cloud_view.released_cloud_view`` with the released code's cloud virtual
+    lanes (``virtual_lane_all`` after one ``scene_update``) on ``states`` random 3x3 states of
+    ``vehicles`` vehicles (uniform lanes and positions, seeds 0, 1, ...); returns the number of
+    lanes whose sets of (position, vehicle) differ (printed per state)."""
+    from mivecc_env.sim import cloud_view
+
+    rmap = lane_map(2100.0)
+    args = types.SimpleNamespace(collision_thr=STRICT_M, c_mode="closer", s_agent_num=15,
+                                 m_agent_num=60, type="s_test", priori_knowledge=True)
+    cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=1.0, model="released")
+    bad = 0
+    for seed in range(states):
+        rng = np.random.default_rng(seed)
+        lane = rng.integers(0, 12, vehicles)
+        s = rng.uniform(0.0, 599.0, vehicles)
+        sim = Simulator(cfg, seed=0)
+        sim.active[0, :vehicles] = True
+        sim.lane[0, :vehicles], sim.s[0, :vehicles] = lane, s
+        ours = cloud_view.released_cloud_view(sim.network, sim.active, sim.lane, sim.s)
+        first = np.full((3, 12), 1e9)
+        first[0, 0] = first[-1] = 0.0  # one vehicle at time 0 ends the constructor's loop
+        rel = scene.MultiTrafficInteraction(first, args)
+        rel.veh_info = [[] for _ in range(12)]
+        index = {}
+        for r in range(12):
+            mine = sorted((i for i in range(vehicles) if rmap[lane[i]] == r), key=lambda i: -s[i])
+            for j, i in enumerate(mine):  # the released lists hold the front vehicle first
+                rel.veh_info[r].append({
+                    "p": VALID_LEN_M - s[i], "v": 10.0, "a": 0.0, "control": True,
+                    "finish": False, "collision": 0, "section": -1, "vir_p": 150,
+                    "step": 0, "header": False, "closer_p": 150, "reward": 10,
+                    "seq_p": [-1, -1], "m_seq": -1})
+                index[(r, j)] = i
+        rel.veh_num = np.array([len(x) for x in rel.veh_info])
+        rel.arrive_time = np.full((3, 12), 1e9)  # nothing enters
+        rel.virtual_lane = [[] for _ in range(9)]
+        rel.scene_update()
+        diff = 0
+        for ln in range(12):
+            sel = ours.point_group == ln
+            got = sorted(zip(np.round(ours.point_pos[sel], 5).tolist(),
+                             ours.point_vehicle[sel].tolist(), strict=True))
+            ref = sorted((round(VALID_LEN_M - it[0], 5), index[(it[1], it[2])])
+                         for it in rel.virtual_lane_all[rmap[ln]])
+            diff += got != ref
+        print(f"cloud view, state {seed}: {int((~ours.point_own).sum())} projections, "
+              f"{diff} of 12 lanes differ", flush=True)
+        bad += diff
+    return bad
+
+
 def main(argv: list[str] | None = None) -> list[dict]:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", type=Path, required=True,
@@ -217,8 +269,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    "first step where a position differs by more than 1e-6 m")
     p.add_argument("--without-corner-reset", action="store_true",
                    help="lockstep with stale_corner_reset=False (the preset before it)")
+    p.add_argument("--check-cloud-view", type=int, metavar="STATES", default=0,
+                   help="only compare the released cloud view (sim/cloud_view.py) with the "
+                   "released code's on this many random 3x3 states")
     args = p.parse_args(argv)
     scene = load_scene(args.scene)
+    if args.check_cloud_view:
+        bad = check_cloud_view(scene, args.check_cloud_view)
+        print(f"cloud view: {bad} lanes differ in {args.check_cloud_view} states")
+        return [{"cloud_view_lanes_differing": bad}]
     if args.lockstep:
         rows = []
         for density in args.density:

@@ -15,6 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import comparison
 import paper_table
 import released_reference
+import released_study
 import rules_study
 import trace_collisions
 
@@ -70,6 +71,16 @@ def test_comparison_runs_reuses_and_tabulates(tmp_path: Path) -> None:
         assert [r["avg_travel_velocity_mps"] for r in csv.DictReader(fh)] == [
             r["avg_travel_velocity_mps"] for r in rows]
 
+
+
+def test_released_study_reports_both_collision_counts(tmp_path: Path) -> None:
+    released_study.main(["--steps", "200", "--parts", "released", "--densities", "2100",
+                         "--out", str(tmp_path)])
+    with open(tmp_path / "released_study.csv") as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert int(row["released_check"]) <= int(row["collided_vehicles"])
+    text = (tmp_path / "released_study.md").read_text()
+    assert "| collisions | released check |" in text and "| released | released | 2100 |" in text
 
 
 def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixture[str]) -> None:
