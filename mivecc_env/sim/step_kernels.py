@@ -4,12 +4,21 @@
   every vehicle (reference: ``Simulator._safety_inputs_reference``);
 * :func:`collision_pairs` - vehicle pairs closer than a vehicle length after a move
   (reference: ``mivecc_env.sim.core.collision_pairs_reference``);
-* :func:`blocked_entries` - entry lanes with a vehicle closer than the clearance to the entry.
+* :func:`blocked_entries` - entry lanes with a vehicle closer than the clearance to the entry;
+* :func:`safety_fast` - the inputs and the safety value in two passes around numpy's own logs
+  (reference: ``safety_value`` of the reference inputs);
+* :func:`move` - end rule, fusion and bounded motion of the plain unsignalized model, state
+  written in place (reference: ``Simulator._move``);
+* :func:`entry_plan` / :func:`place_entries` - queued vehicles entering free slots (reference:
+  the numpy body of ``Simulator._enter_vehicles``); :func:`advance_arrivals` - the counting loop
+  of ``ArrivalProcess.advance``;
+* :func:`record_exits` / :func:`record_passing` - trip and passing-time accumulators
+  (references: ``Simulator._record_exits``, ``PassingTimes.record``).
 
 Only comparisons and the reference's own float operations (same operands, same order, IEEE
 arithmetic, no fast-math) are used, so the results are bit-identical; the tests compare each
-kernel with its reference. Each function returns None when numba is missing (the caller then
-runs the reference).
+kernel with its reference (``tests/sim/test_kernels.py``). Each function returns None (False)
+when numba is missing (the caller then runs the reference).
 """
 
 from __future__ import annotations
