@@ -5,10 +5,11 @@
   :func:`mivecc_env.sim.state_graph.build_graphs` takes the candidate points on either side of
   its own point on the sorted virtual lane, drops the invalid ones (outside the lane's run or
   the node's area), and stable-sorts the rest by distance (ties: lower point index first) to
-  keep the K-1 nearest. Both halves are already sorted by distance, so this kernel walks them
-  with two pointers, stopping after K-1 rows: behind the vehicle a run of equal distances is
-  emitted in increasing point index (the stable sort's tie order), and a tie between the two
-  halves goes to the point behind (the lower index).
+  keep the K-1 nearest. Both halves are already sorted by distance, so this kernel collects
+  the valid points of each half (at most K-1 each) into small buffers, reverses every run of
+  equal distances behind the vehicle (the stable sort's tie order: increasing point index), and
+  merges the two buffers without branches (sentinels of infinite distance end each side),
+  stopping after K-1 rows; a tie between the halves goes to the point behind (the lower index).
 * :func:`select_per_group`: the K lowest keys per group (stable top-K by insertion).
 * :func:`density_indicator`, :func:`area_centres`, :func:`control_area`: loops replacing a few
   numpy calls each.
@@ -30,22 +31,6 @@ __all__ = ["HAVE_NUMBA", "build", "select_per_group"]
 @njit
 def _valid(pos, use_area, centre, radius):  # pragma: no cover - compiled
     return (not use_area) or abs(pos - centre) <= radius
-
-
-@njit
-def _next_behind(q, lo, point_pos, use_area, centre, radius):  # pragma: no cover - compiled
-    """Largest valid point index <= q (``lo - 1`` if none in ``[lo, q]``)."""
-    while q >= lo and not _valid(point_pos[q], use_area, centre, radius):
-        q -= 1
-    return q
-
-
-@njit
-def _next_ahead(q, hi, point_pos, use_area, centre, radius):  # pragma: no cover - compiled
-    """Smallest valid point index >= q (``hi`` if none in ``[q, hi)``)."""
-    while q < hi and not _valid(point_pos[q], use_area, centre, radius):
-        q += 1
-    return q
 
 
 @njit
@@ -76,6 +61,10 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
            accel, v_lo, v_mul, a_mul, lane_cp_s, lane_length, use_area, centre, radius,
            inv_scale):  # pragma: no cover - compiled
     va = _channels(velocity, accel, v_lo, v_mul, a_mul)
+    b_idx = np.empty(k + 1, np.int64)  # valid candidates behind / ahead of one decision
+    b_dist = np.empty(k + 1, np.float64)  # (+ a sentinel)
+    a_idx = np.empty(k + 1, np.int64)
+    a_dist = np.empty(k + 1, np.float64)
     for i in range(decision.shape[0]):
         d = decision[i]
         s = view_s[d]
@@ -100,34 +89,48 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         p = own_point[d]
         lo = max(run_start[p], p - (k - 1))
         hi = min(run_end[p], p + k)  # exclusive
-        qb = _next_behind(p - 1, lo, point_pos, use_area, c, radius)
-        qa = _next_ahead(p + 1, hi, point_pos, use_area, c, radius)
-        row = 1
-        while row < k and (qb >= lo or qa < hi):
-            take_behind = False
-            if qb >= lo:
-                db = abs(point_pos[qb] - s)
-                take_behind = qa >= hi or db <= abs(point_pos[qa] - s)
-            if take_behind:
-                # a run of equal distances behind goes out in increasing point index
-                end = qb
-                nxt = _next_behind(qb - 1, lo, point_pos, use_area, c, radius)
-                while nxt >= lo and abs(point_pos[nxt] - s) == db:
-                    end = nxt
-                    nxt = _next_behind(nxt - 1, lo, point_pos, use_area, c, radius)
-                q = end
-                while q <= qb and row < k:
-                    if _valid(point_pos[q], use_area, c, radius):
-                        _write(cells, head + row * k, point_pos[q] - s, point_vehicle[q], va,
-                               inv_scale)
-                        row += 1
-                    q += 1
-                qb = nxt
-            else:
-                _write(cells, head + row * k, point_pos[qa] - s, point_vehicle[qa], va,
-                       inv_scale)
-                row += 1
-                qa = _next_ahead(qa + 1, hi, point_pos, use_area, c, radius)
+        nb = 0
+        for q in range(p - 1, lo - 1, -1):  # valid points behind, nearest (highest) first
+            if _valid(point_pos[q], use_area, c, radius):
+                b_idx[nb] = q
+                b_dist[nb] = abs(point_pos[q] - s)
+                nb += 1
+        # a run of equal distances behind goes out in increasing point index
+        t = 0
+        while t < nb - 1:
+            if b_dist[t + 1] != b_dist[t]:
+                t += 1
+                continue
+            e = t + 1
+            while e + 1 < nb and b_dist[e + 1] == b_dist[t]:
+                e += 1
+            lo_t, hi_t = t, e
+            while lo_t < hi_t:
+                b_idx[lo_t], b_idx[hi_t] = b_idx[hi_t], b_idx[lo_t]
+                lo_t += 1
+                hi_t -= 1
+            t = e + 1
+        na = 0
+        for q in range(p + 1, hi):  # valid points ahead, nearest (lowest) first
+            if _valid(point_pos[q], use_area, c, radius):
+                a_idx[na] = q
+                a_dist[na] = abs(point_pos[q] - s)
+                na += 1
+        b_dist[nb] = np.inf  # sentinels: an exhausted side never wins
+        b_idx[nb] = p
+        a_dist[na] = np.inf
+        a_idx[na] = p
+        # merge by distance (a tie goes to the point behind, the lower index), branch-free
+        ib = 0
+        ia = 0
+        cell = head + k
+        for _ in range(min(k - 1, nb + na)):
+            take_b = np.int64(b_dist[ib] <= a_dist[ia])
+            q = a_idx[ia] + take_b * (b_idx[ib] - a_idx[ia])
+            ib += take_b
+            ia += 1 - take_b
+            _write(cells, cell, point_pos[q] - s, point_vehicle[q], va, inv_scale)
+            cell += k
 
 
 def build(
