@@ -170,6 +170,10 @@ class NearMissStats:
         self._mark_cp_flat = self._mark_cp.reshape(-1, 4)
         self._cp_s_flat = cp_s.reshape(-1, 2)
         self._cp_side_key_flat = self._cp_side_key.reshape(-1, 2)
+        # the kernel's float parameters, and its reusable work arrays
+        self._geom = np.array([seg, net.lane_offset_m, half, self._local_step_m,
+                               1.0 / TTC_BIN_S, PET_THRESHOLD_S])
+        self._scratch = near_miss_kernel.NearMissScratch(self.batch_size, net.n_cp)
 
     def reset_at(self, envs: NDArray[np.bool_] | IntArray | slice = slice(None)) -> None:
         """Clear the accumulators of some environments (a mask, indices or a slice)."""
@@ -203,16 +207,17 @@ class NearMissStats:
         net = self.network
         if self.use_kernel:
             t0 = np.broadcast_to(np.asarray(t0_s, dtype=np.float64), (self.batch_size,))
+            n, n_on, w = view.n_vehicles, net.lane_centres_s.shape[1], self._scratch
+            w.ensure(n, 4 * n * n_on, 2 * n * n_on)
             near_miss_kernel.record(
                 view.env, view.lane, view.s, s_new, v_old, view.front_point, view.point_vehicle,
                 view.d_front, view.leader, gone, np.ascontiguousarray(t0), float(dt_s),
                 self._mark_pos_flat, self._mark_cp_flat, self._cp_s_flat,
-                self._cp_side_key_flat, self._lane_side, net.segment_length_m,
-                net.lane_offset_m, 0.5 * self.length_m, net.lane_centres_s.shape[1], net.n_cp,
-                self._local, self._local_step_m, _N_TTC_BINS, 1.0 / TTC_BIN_S,
-                PET_THRESHOLD_S, self.min_ttc_s, self.ttc_hist, self.min_pet_s,
+                self._cp_side_key_flat, self._lane_side, self._geom, n_on, net.n_cp,
+                self._local, _N_TTC_BINS, self.min_ttc_s, self.ttc_hist, self.min_pet_s,
                 self.pet_samples, self.pet_under, self.last_leave_s, self.last_leave_side,
-                self.min_distance_m,
+                self.min_distance_m, w.step_min, w.sq, w.count, w.ev_int, w.ev_float,
+                w.touched, w.touched_env, w.cand, w.cand_closing,
             )
             self._far_pairs(view, s_new, gone)
             return

@@ -1,10 +1,21 @@
 """Compiled (numba) kernel of :meth:`mivecc_env.sim.near_miss.NearMissStats.record_step`.
 
-One pass over the vehicles of a step updates the TTC, PET and own-lane / crossing-pair distance
-accumulators in place. It uses the numpy reference's own float operations (same operands, same
-order, no fast-math) and processes the PET events in the reference's order, so the accumulators
-are bit-identical (``tests/sim/test_near_miss.py`` compares both paths). Returns False without
-numba (the caller then runs the numpy reference).
+One pass over the vehicles of a step updates the TTC and own-lane gap accumulators, a second
+over the vehicles near an intersection centre collects the reach / leave events and the
+crossing-pair distances; all accumulators are updated in place. It uses the numpy reference's
+own float operations (same operands, same order, no fast-math), so the accumulators are
+bit-identical (``tests/sim/test_near_miss.py`` compares both paths):
+
+* PET events: the reference processes them in a stable sort by ``point * 2 dt + t_rel``. Events
+  of different points never interact (each point has its own last leave; the per-environment
+  minimum and counts do not depend on the order), so a point with one event this step is
+  processed at once, and only the events of points with several are sorted (stably, by the same
+  float key: the same order per point as the reference's sort).
+* Crossing pairs: only the (point, side) cells written this step can lower a minimum (an unwritten
+  cell is ``inf``, and so is any ``hypot`` with it), so only those are read and then cleared.
+
+Scratch buffers (:class:`NearMissScratch`) are owned by the caller and reused across steps: no
+array is allocated per call. Returns False without numba (the caller then runs the reference).
 """
 
 from __future__ import annotations
@@ -14,61 +25,98 @@ import numpy as np
 from mivecc_env.sim._numba import HAVE_NUMBA, njit
 
 
+class NearMissScratch:
+    """Reusable work arrays of the kernel for ``batch_size`` environments of ``n_cp`` points.
+
+    ``sq`` (B * n_cp * 2,) is ``inf`` between calls and ``count`` (B * n_cp,) zero; the event
+    arrays grow with the number of vehicles (:meth:`ensure`).
+    """
+
+    def __init__(self, batch_size: int, n_cp: int) -> None:
+        self.sq = np.full(batch_size * n_cp * 2, np.inf)
+        self.count = np.zeros(batch_size * n_cp, dtype=np.int64)
+        self.step_min = np.empty(batch_size)
+        self.ev_int = np.empty((0, 5), dtype=np.int64)
+        self.ev_float = np.empty((0, 2), dtype=np.float64)
+        self.touched = np.empty(0, dtype=np.int64)
+        self.touched_env = np.empty(0, dtype=np.int64)
+        self.cand = np.empty(0, dtype=np.int64)
+        self.cand_closing = np.empty(0, dtype=np.float64)
+
+    def ensure(self, n_vehicles: int, n_events: int, n_cells: int) -> None:
+        """Room for ``n_vehicles``, ``n_events`` PET events and ``n_cells`` crossing-pair writes."""
+        if self.cand.shape[0] < n_vehicles:
+            self.cand = np.empty(max(n_vehicles, 2 * self.cand.shape[0]), dtype=np.int64)
+            self.cand_closing = np.empty(self.cand.shape[0], dtype=np.float64)
+        if self.ev_int.shape[0] < n_events:
+            size = max(n_events, 2 * self.ev_int.shape[0])
+            self.ev_int = np.empty((size, 5), dtype=np.int64)
+            self.ev_float = np.empty((size, 2), dtype=np.float64)
+        if self.touched.shape[0] < n_cells:
+            self.touched = np.empty(max(n_cells, 2 * self.touched.shape[0]), dtype=np.int64)
+            self.touched_env = np.empty(self.touched.shape[0], dtype=np.int64)
+
+
 @njit
 def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, gone, t0, dt,
-            mark_pos, mark_cp, cp_s, cp_key, lane_side, seg, off, half, n_on, n_cp, local_ok,
-            local_step, n_bins, bin_inv, pet_threshold, min_ttc, hist, min_pet, pet_samples,
-            pet_under, last_t, last_side, min_dist):  # pragma: no cover - compiled
+            mark_pos, mark_cp, cp_s, cp_key, lane_side, geom, n_on, n_cp, local_ok, n_bins,
+            min_ttc, hist, min_pet, pet_samples, pet_under, last_t, last_side, min_dist,
+            step_min, sq, count, ev_int, ev_float, touched, touched_env, cand, cand_closing):  # pragma: no cover - compiled
+    seg, off, half, local_step, bin_inv, pet_threshold = (
+        geom[0], geom[1], geom[2], geom[3], geom[4], geom[5])
     n = env.size
     b = min_ttc.size
-    # --- time to collision with the nearest point ahead, when closing in
+    step_min[:] = np.inf
+    max_move = -np.inf
+    # The data-dependent tests (closing in? near a centre?) append the index to a list without
+    # a branch; the work on the listed vehicles follows in a second loop.
+    n_close = 0
     for i in range(n):
         f = front[i]
-        if f >= 0:
-            closing = v[i] - v[point_vehicle[f]]
-            if closing > 0.0:
-                gap = d_front[i] if d_front[i] > 0.0 else 0.0  # level: 0, never < 0
-                ttc = gap / closing
-                e = env[i]
-                if ttc < min_ttc[e]:
-                    min_ttc[e] = ttc
-                x = ttc * bin_inv
-                k = n_bins if not (x < n_bins) else int(x)
-                hist[e, k] += 1
-    # --- own-lane gaps after the move
-    step_min = np.full(b, np.inf)
-    for i in range(n):
+        closing = v[i] - v[point_vehicle[f if f >= 0 else 0]]
+        cand[n_close] = i
+        cand_closing[n_close] = closing
+        n_close += (f >= 0) & (closing > 0.0)
+        # --- own-lane gaps after the move
         lead = leader[i]
         if lead >= 0:
             gap = s_new[lead] - s_new[i]
             if gone[lead]:
                 gap = np.inf
-            if gap < step_min[env[i]]:
-                step_min[env[i]] = gap
-    # --- vehicles near a centre: reach / leave marks crossed, crossing pairs
-    max_move = -np.inf
-    for i in range(n):
+            e = env[i]
+            if gap < step_min[e]:
+                step_min[e] = gap
         m = s_new[i] - s_old[i]
         if m > max_move:
             max_move = m
+    # --- time to collision with the nearest point ahead, when closing in
+    for o in range(n_close):
+        i = cand[o]
+        closing = cand_closing[o]
+        gap = d_front[i] if d_front[i] > 0.0 else 0.0  # level: 0, never < 0
+        ttc = gap / closing
+        e = env[i]
+        if ttc < min_ttc[e]:
+            min_ttc[e] = ttc
+        x = ttc * bin_inv
+        k = n_bins if not (x < n_bins) else int(x)
+        hist[e, k] += 1
+    # --- vehicles near a centre: reach / leave marks crossed, crossing pairs
     local = local_ok and max_move <= local_step
     radius = off + max(half + max_move, 2.0 * off)
     inv_seg = 1.0 / seg
-    n_ev = 0
-    cap = 4 * n if local else 4 * n * n_on
-    ev_point = np.empty(cap, np.int64)
-    ev_key = np.empty(cap, np.float64)
-    ev_t = np.empty(cap, np.float64)
-    ev_side = np.empty(cap, np.int64)
-    ev_leave = np.empty(cap, np.bool_)
-    ev_env = np.empty(cap, np.int64)
-    sq = np.full(b * n_cp * 2, np.inf)
-    reach2 = 2.0 * off
+    n_near = 0
     for i in range(n):
         kc = np.rint(s_new[i] * inv_seg)
+        cand[n_near] = i
+        n_near += (not local) | (abs(s_new[i] - kc * seg) < radius)
+    n_ev = 0
+    n_sq = 0
+    reach2 = 2.0 * off
+    for o in range(n_near):
+        i = cand[o]
         if local:
-            if not (abs(s_new[i] - kc * seg) < radius):
-                continue
+            kc = np.rint(s_new[i] * inv_seg)
             j0 = min(max(int(kc) - 1, 0), n_on - 1)
             j1 = j0 + 1
         else:
@@ -84,12 +132,13 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
                 if so < mp and sn >= mp:
                     t_rel = (mp - so) / (sn - so) * dt
                     p = e * n_cp + mark_cp[row, c]
-                    ev_point[n_ev] = p
-                    ev_key[n_ev] = p * (2.0 * dt) + t_rel
-                    ev_t[n_ev] = t_rel + t0[e]
-                    ev_side[n_ev] = side
-                    ev_leave[n_ev] = (c & 1) == 1
-                    ev_env[n_ev] = e
+                    ev_int[n_ev, 0] = p
+                    ev_int[n_ev, 1] = side
+                    ev_int[n_ev, 2] = c & 1  # marks alternate reach, leave
+                    ev_int[n_ev, 3] = e
+                    ev_float[n_ev, 0] = t_rel
+                    ev_float[n_ev, 1] = t_rel + t0[e]
+                    count[p] += 1
                     n_ev += 1
             for c in range(2):
                 d = sn - cp_s[row, c]
@@ -98,30 +147,58 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
                     d2 = d * d
                     if d2 < sq[q]:
                         sq[q] = d2
-    # PET: events in time order per point (a stable sort, as the reference)
-    order = np.argsort(ev_key[:n_ev], kind="mergesort")
+                    touched[n_sq] = q
+                    touched_env[n_sq] = e
+                    n_sq += 1
+    # PET: a point with one event at once; the others in the reference's (stable) order
+    n_multi = 0
     for o in range(n_ev):
-        q = order[o]
-        p = ev_point[q]
-        if ev_leave[q]:
-            last_t[p] = ev_t[q]
-            last_side[p] = ev_side[q]
-        elif last_side[p] + ev_side[q] == 1:
-            pet = ev_t[q] - last_t[p]
-            e = ev_env[q]
-            if pet < min_pet[e]:
-                min_pet[e] = pet
-            pet_samples[e] += 1
-            if pet < pet_threshold:
-                pet_under[e] += 1
+        if count[ev_int[o, 0]] > 1:
+            ev_int[n_multi, 4] = o
+            n_multi += 1
+        else:
+            _pet_event(o, ev_int, ev_float, last_t, last_side, min_pet, pet_samples, pet_under,
+                       pet_threshold)
+    if n_multi:
+        key = np.empty(n_multi, np.float64)
+        for k in range(n_multi):
+            o = ev_int[k, 4]
+            key[k] = ev_int[o, 0] * (2.0 * dt) + ev_float[o, 0]
+        order = np.argsort(key, kind="mergesort")
+        for k in range(n_multi):
+            _pet_event(ev_int[order[k], 4], ev_int, ev_float, last_t, last_side, min_pet,
+                       pet_samples, pet_under, pet_threshold)
+    for o in range(n_ev):
+        count[ev_int[o, 0]] = 0
+    for o in range(n_sq):
+        q = touched[o]
+        q0 = q - (q & 1)
+        pair = np.sqrt(sq[q0] + sq[q0 + 1])
+        e = touched_env[o]
+        if pair < step_min[e]:
+            step_min[e] = pair
+    for o in range(n_sq):
+        sq[touched[o]] = np.inf
     for e in range(b):
-        for c in range(n_cp):
-            q = (e * n_cp + c) * 2
-            pair = np.sqrt(sq[q] + sq[q + 1])
-            if pair < step_min[e]:
-                step_min[e] = pair
         if step_min[e] < min_dist[e]:
             min_dist[e] = step_min[e]
+
+
+@njit
+def _pet_event(o, ev_int, ev_float, last_t, last_side, min_pet, pet_samples, pet_under,
+               pet_threshold):  # pragma: no cover - compiled
+    p = ev_int[o, 0]
+    if ev_int[o, 2] == 1:
+        last_t[p] = ev_float[o, 1]
+        last_side[p] = ev_int[o, 1]
+    elif last_side[p] + ev_int[o, 1] == 1:
+        pet = ev_float[o, 1] - last_t[p]
+        e = ev_int[o, 3]
+        if pet < min_pet[e]:
+            min_pet[e] = pet
+        pet_samples[e] += 1
+        if pet < pet_threshold:
+            pet_under[e] += 1
 
 
 def record(*args: object) -> bool:

@@ -161,47 +161,49 @@ _NO_VALUE = np.zeros(0, dtype=np.float64)
 
 
 @njit
-def _near_conflict_point(x, seg, reach):  # pragma: no cover
-    return np.abs(x - np.rint(x / seg) * seg) < reach
-
-
-@njit
 def _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, n_cp, seg, off,
                      length):  # pragma: no cover
-    # Arrays are sized by upper bounds (growing them inside a loop defeats numba's optimiser).
+    """(k, 2) sorted unique pairs: the reference's candidates, then its ``np.unique``."""
     n = s_new.size
     n_col = lane_cp_s.shape[1]
     reach = off + length
-    # vehicles within a vehicle length of a conflict point, in (vehicle, column) order
-    m = 0
+    # Own-lane pairs; and the vehicles near an intersection centre, listed without a branch.
+    pa = np.empty(n, np.int64)
+    pb = np.empty(n, np.int64)
+    near = np.empty(n, np.int64)
+    k = 0
+    n_near = 0
     for i in range(n):
-        if not exited[i] and _near_conflict_point(s_new[i], seg, reach):
-            for c in range(n_col):
-                if np.abs(s_new[i] - lane_cp_s[lane[i], c]) < length:
-                    m += 1
+        x = s_new[i]
+        near[n_near] = i
+        n_near += (not exited[i]) & (np.abs(x - np.rint(x / seg) * seg) < reach)
+        ld = leader[i]
+        if ld >= 0 and not exited[i] and not exited[ld] and s_new[ld] - x < length:
+            pa[k] = i
+            pb[k] = ld
+            k += 1
+    # near vehicles within a vehicle length of a conflict point, in (vehicle, column) order
+    m = 0
+    for o in range(n_near):
+        i = near[o]
+        for c in range(n_col):
+            if np.abs(s_new[i] - lane_cp_s[lane[i], c]) < length:
+                m += 1
     vi = np.empty(m, np.int64)
     key = np.empty(m, np.int64)
     dd = np.empty(m, np.float64)
     j = 0
-    for i in range(n):
-        if not exited[i] and _near_conflict_point(s_new[i], seg, reach):
-            ln = lane[i]
-            for c in range(n_col):
-                delta = s_new[i] - lane_cp_s[ln, c]
-                if np.abs(delta) < length:
-                    vi[j] = i
-                    key[j] = env[i] * n_cp + lane_cp[ln, c]
-                    dd[j] = delta
-                    j += 1
-    pa = np.empty(n + 7 * m, np.int64)
-    pb = np.empty(n + 7 * m, np.int64)
-    k = 0
-    for i in range(n):
-        ld = leader[i]
-        if ld >= 0 and not exited[i] and not exited[ld] and s_new[ld] - s_new[i] < length:
-            pa[k] = i
-            pb[k] = ld
-            k += 1
+    for o in range(n_near):
+        i = near[o]
+        ln = lane[i]
+        for c in range(n_col):
+            delta = s_new[i] - lane_cp_s[ln, c]
+            if np.abs(delta) < length:
+                vi[j] = i
+                key[j] = env[i] * n_cp + lane_cp[ln, c]
+                dd[j] = delta
+                j += 1
+    n_cross = 0
     if m > 1:
         order = np.argsort(key, kind="mergesort")
         vs, ks, ds = vi[order], key[order], dd[order]
@@ -212,10 +214,43 @@ def _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, n_cp,
                 b = a + shift
                 if (ks[a] == ks[b] and lane[vs[a]] != lane[vs[b]]
                         and ds[a] ** 2 + ds[b] ** 2 < length ** 2):
-                    pa[k] = vs[a]
-                    pb[k] = vs[b]
-                    k += 1
-    return pa[:k], pb[:k]
+                    n_cross += 1
+        ca = np.empty(n_cross, np.int64)
+        cb = np.empty(n_cross, np.int64)
+        h = 0
+        for shift in range(1, 8):
+            if shift >= m:
+                break
+            for a in range(m - shift):
+                b = a + shift
+                if (ks[a] == ks[b] and lane[vs[a]] != lane[vs[b]]
+                        and ds[a] ** 2 + ds[b] ** 2 < length ** 2):
+                    ca[h] = vs[a]
+                    cb[h] = vs[b]
+                    h += 1
+    else:
+        ca = np.empty(0, np.int64)
+        cb = np.empty(0, np.int64)
+    # np.unique(np.sort(pairs, axis=1), axis=0): rows (lo, hi) in lexicographic order, once
+    total = k + n_cross
+    if total == 0:
+        return np.zeros((0, 2), np.int64)
+    code = np.empty(total, np.int64)
+    for t in range(total):
+        x, y = (pa[t], pb[t]) if t < k else (ca[t - k], cb[t - k])
+        code[t] = min(x, y) * n + max(x, y)
+    code.sort()
+    n_out = 1
+    for t in range(1, total):
+        n_out += code[t] != code[t - 1]
+    out = np.empty((n_out, 2), np.int64)
+    r = 0
+    for t in range(total):
+        if t == 0 or code[t] != code[t - 1]:
+            out[r, 0] = code[t] // n
+            out[r, 1] = code[t] % n
+            r += 1
+    return out
 
 
 def collision_pairs(
@@ -223,14 +258,16 @@ def collision_pairs(
     lane: NDArray[np.int64], env: NDArray[np.int64], lane_cp: NDArray[np.int64],
     lane_cp_s: NDArray[np.float64], n_cp: int, seg: float, off: float, length: float,
 ) -> NDArray[np.int64] | None:
-    """(k, 2) sorted unique view-index pairs closer than ``length`` [m] (see the reference)."""
+    """(k, 2) sorted unique view-index pairs closer than ``length`` [m] (see the reference).
+
+    The candidates are the reference's (own-lane neighbours; crossing pairs within 7 places of
+    one another in a stable sort by conflict point); the unique sorted rows are made in the
+    kernel (an int64 code ``lo * n + hi`` per pair, sorted, repeats dropped).
+    """
     if not HAVE_NUMBA:
         return None
-    a, b = _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, int(n_cp),
+    return _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, int(n_cp),
                             float(seg), float(off), float(length))
-    if a.size == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    return np.unique(np.sort(np.stack([a, b], axis=1), axis=1), axis=0)
 
 
 @njit
