@@ -4,7 +4,11 @@ One pass over the vehicles of a step updates the TTC and own-lane gap accumulato
 over the vehicles near an intersection centre collects the reach / leave events and the
 crossing-pair distances; all accumulators are updated in place. It uses the numpy reference's
 own float operations (same operands, same order, no fast-math), so the accumulators are
-bit-identical (``tests/sim/test_near_miss.py`` compares both paths):
+bit-identical (``tests/sim/test_near_miss.py`` and ``test_near_miss_long.py`` compare both
+paths, the latter at every step of long busy runs):
+
+* The data-dependent tests (is the vehicle closing in? near a centre?) append its index to a
+  list without a branch; the work on the listed vehicles follows in a second loop.
 
 * PET events: the reference processes them in a stable sort by ``point * 2 dt + t_rel``. Events
   of different points never interact (each point has its own last leave; the per-environment
@@ -61,7 +65,8 @@ class NearMissScratch:
 def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, gone, t0, dt,
             mark_pos, mark_cp, cp_s, cp_key, lane_side, geom, n_on, n_cp, local_ok, n_bins,
             min_ttc, hist, min_pet, pet_samples, pet_under, last_t, last_side, min_dist,
-            step_min, sq, count, ev_int, ev_float, touched, touched_env, cand, cand_closing):  # pragma: no cover - compiled
+            step_min, sq, count, ev_int, ev_float, touched, touched_env, cand,
+            cand_closing):  # pragma: no cover - compiled
     seg, off, half, local_step, bin_inv, pet_threshold = (
         geom[0], geom[1], geom[2], geom[3], geom[4], geom[5])
     n = env.size
