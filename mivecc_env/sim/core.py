@@ -45,6 +45,7 @@ from mivecc_env.sim.network import GridNetwork
 from mivecc_env.sim.passing import PassingTimes
 from mivecc_env.sim.safety import safety_value, time_to_collision
 from mivecc_env.sim.signal_control import SignalPhases
+from mivecc_env.sim.view_kernel import ViewWorkspace
 from mivecc_env.sim.virtual_lane import VirtualLaneView, build_view
 
 FloatArray = NDArray[np.float64]
@@ -159,6 +160,7 @@ class Simulator:
         # step on a virtual lane
         self._sv_last = np.zeros(shape)
         self._closer_last = np.zeros(shape)
+        self._view_buffers = ViewWorkspace()  # reused arrays of self._view (two in turn)
         self._refresh_view()
 
     def reset_at(self, env_index: Sequence[int] | np.ndarray, seeds: Sequence[int]) -> None:
@@ -265,7 +267,7 @@ class Simulator:
     def _refresh_view(self) -> None:
         self._view = build_view(
             self.network, self.config.projection_window_m, self.config.projection_clear_m,
-            self.active, self.lane, self.s,
+            self.active, self.lane, self.s, self._view_buffers,
         )
         self._safety = self._compute_safety(self._view)
 

@@ -35,32 +35,24 @@ if TYPE_CHECKING:
 
 @njit
 def _points(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, window_m,
-            clear_m, seg, off, n_on, candidate, n_lanes, q_scale, qbits, ibits):  # pragma: no cover
-    """Pass 1: vehicles, points and packed sort keys (see the module docstring)."""
+            clear_m, seg, off, n_on, candidate, n_lanes, q_scale, qbits, ibits, vehicle, env,
+            v_lane, v_s, group, pos, src, keys):  # pragma: no cover
+    """Pass 1: vehicles, points and packed sort keys (see the module docstring).
+
+    Writes into the given buffers (vehicle arrays at least as long as the slots, point arrays
+    at least the slots times ``1 + n_col``) and returns (vehicles, points, keys in range).
+    """
     bsz, cap = active.shape
+    n_col = 2 if candidate else lane_cp_s.shape[1]
     n = 0
     for b in range(bsz):
         for k in range(cap):
             if active[b, k]:
+                vehicle[n] = b * cap + k
+                env[n] = b
+                v_lane[n] = lane[b, k]
+                v_s[n] = s[b, k]
                 n += 1
-    n_col = 2 if candidate else lane_cp_s.shape[1]
-    vehicle = np.empty(n, np.int64)
-    env = np.empty(n, np.int64)
-    v_lane = np.empty(n, np.int64)
-    v_s = np.empty(n, np.float64)
-    i = 0
-    for b in range(bsz):
-        for k in range(cap):
-            if active[b, k]:
-                vehicle[i] = b * cap + k
-                env[i] = b
-                v_lane[i] = lane[b, k]
-                v_s[i] = s[b, k]
-                i += 1
-    max_p = n * (1 + n_col)
-    group = np.empty(max_p, np.int64)
-    pos = np.empty(max_p, np.float64)
-    src = np.empty(max_p, np.int64)
     for i in range(n):
         group[i] = env[i] * n_lanes + v_lane[i]
         pos[i] = v_s[i]
@@ -82,7 +74,6 @@ def _points(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, win
                 src[p] = i
                 p += 1
     size = p
-    keys = np.empty(size, np.int64)
     qmax = (np.int64(1) << qbits) - 1
     shift_g = qbits + ibits
     ok = True
@@ -91,26 +82,17 @@ def _points(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, win
         if q > qmax or q < 0:
             ok = False
         keys[j] = (group[j] << shift_g) | (q << ibits) | j
-    return vehicle, env, v_lane, v_s, pos[:size], src[:size], keys, ok
+    return n, size, ok
 
 
 @njit
-def _neighbours(keys, pos, src, n, v_s, imask, shift_g):  # pragma: no cover
-    """Pass 2: sorted point arrays, runs, front/back points and own-lane neighbours."""
+def _neighbours(keys, pos, src, n, v_s, imask, shift_g, g_s, p_s, s_s, own, run_start, run_end,
+                own_point, front, back, d_front, d_back, leader, follower):  # pragma: no cover
+    """Pass 2: sorted point arrays, runs, front/back points and own-lane neighbours.
+
+    Writes the first ``keys.size`` (points) or ``n`` (vehicles) entries of the given buffers.
+    """
     size = keys.size
-    g_s = np.empty(size, np.int64)
-    p_s = np.empty(size, np.float64)
-    s_s = np.empty(size, np.int64)
-    own = np.empty(size, np.bool_)
-    own_point = np.empty(n, np.int64)
-    run_start = np.empty(size, np.int64)
-    run_end = np.empty(size, np.int64)
-    front = np.empty(n, np.int64)
-    back = np.empty(n, np.int64)
-    d_front = np.empty(n, np.float64)
-    d_back = np.empty(n, np.float64)
-    leader = np.empty(n, np.int64)
-    follower = np.empty(n, np.int64)
     start = 0
     prev_own = -1  # last own point of the current run
     for r in range(size):
@@ -155,19 +137,69 @@ def _neighbours(keys, pos, src, n, v_s, imask, shift_g):  # pragma: no cover
             else:
                 back[i] = -1
                 d_back[i] = np.inf
-    return (g_s, p_s, s_s, own, run_start, run_end, own_point, front, back, d_front, d_back,
-            leader, follower)
+    return 0
 
 
 def _bits(x: int) -> int:
     return max(1, int(x).bit_length())
 
 
+#: (name, dtype, per-vehicle (False) or per-point (True)) of every buffer of one view.
+_BUFFERS = (
+    ("vehicle", np.int64, False), ("env", np.int64, False), ("lane", np.int64, False),
+    ("s", np.float64, False), ("group", np.int64, True), ("pos", np.float64, True),
+    ("src", np.int64, True), ("keys", np.int64, True), ("point_group", np.int64, True),
+    ("point_pos", np.float64, True), ("point_vehicle", np.int64, True),
+    ("point_own", np.bool_, True), ("point_run_start", np.int64, True),
+    ("point_run_end", np.int64, True), ("own_point", np.int64, False),
+    ("front_point", np.int64, False), ("back_point", np.int64, False),
+    ("d_front", np.float64, False), ("d_back", np.float64, False),
+    ("leader", np.int64, False), ("follower", np.int64, False),
+)
+
+
+def _allocate(n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
+    return {name: np.empty(n_points if per_point else n_vehicles, dtype)
+            for name, dtype, per_point in _BUFFERS}
+
+
+class ViewWorkspace:
+    """Reusable output buffers of :func:`build_view_fast`, owned by one caller.
+
+    The compiled passes write into these buffers instead of returning fresh arrays (each
+    array a numba kernel returns costs a Python-side boxing call). The view of a call is
+    made of slices of one of two buffer sets used in turn, so the view returned by the
+    previous call stays intact while the next one is built; the view two calls back is
+    overwritten. Use it only where no view outlives the next build (the simulator's own view:
+    ``Simulator.view`` is valid until the step after next). Buffers grow (never shrink) to
+    the largest batch seen.
+    """
+
+    def __init__(self) -> None:
+        self._sets: list[dict[str, np.ndarray]] = [{}, {}]
+        self._turn = 0
+
+    def take(self, n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
+        """The next buffer set, with room for ``n_vehicles`` vehicles and ``n_points``
+        points."""
+        self._turn ^= 1
+        bufs = self._sets[self._turn]
+        if not bufs or bufs["vehicle"].size < n_vehicles or bufs["keys"].size < n_points:
+            bufs = _allocate(n_vehicles, n_points)
+            self._sets[self._turn] = bufs
+        return bufs
+
+
 def build_view_fast(
     network: GridNetwork, window_m: float, clear_m: float, active: np.ndarray,
     lane: np.ndarray, s: np.ndarray, q_scale: float, candidate: bool,
+    workspace: ViewWorkspace | None = None,
 ) -> VirtualLaneView | None:
-    """The compiled view, or None where the reference path must run (see the module doc)."""
+    """The compiled view, or None where the reference path must run (see the module doc).
+
+    With ``workspace`` the view's arrays are slices of its buffers (see
+    :class:`ViewWorkspace` for how long they stay valid); without, they are fresh arrays.
+    """
     from mivecc_env.sim.virtual_lane import VirtualLaneView
 
     if not HAVE_NUMBA:
@@ -178,27 +210,34 @@ def build_view_fast(
     if n_groups > 1 << 16:  # the reference sorts such batches with a float argsort
         return None
     n_col = 2 if candidate else network.lane_cp_s.shape[1]
-    reach = float(np.max(network.lane_length)) + clear_m + window_m
+    reach = float(network.lane_length.max()) + clear_m + window_m
     qbits = _bits(int(reach * q_scale * 1.001) + 2)
-    ibits = _bits(bsz * cap * (1 + n_col))
+    n_slots = bsz * cap
+    ibits = _bits(n_slots * (1 + n_col))
     if qbits > 32 or _bits(n_groups - 1) + qbits + ibits > 63:
         return None
-    vehicle, env, v_lane, v_s, pos, src, keys, ok = _points(
+    if workspace is None:
+        bufs = _allocate(n_slots, n_slots * (1 + n_col))
+    else:
+        bufs = workspace.take(n_slots, n_slots * (1 + n_col))
+    n, size, ok = _points(
         active, lane, s, network.lane_cp_s, network.lane_cp_other_lane,
         network.lane_cp_other_s, float(window_m), float(clear_m),
         float(network.segment_length_m), float(network.lane_offset_m),
         int(network.lane_centres_s.shape[1]), bool(candidate), n_lanes, float(q_scale),
-        qbits, ibits,
+        qbits, ibits, bufs["vehicle"], bufs["env"], bufs["lane"], bufs["s"], bufs["group"],
+        bufs["pos"], bufs["src"], bufs["keys"],
     )
     if not ok:
         return None
+    keys = bufs["keys"][:size]
     keys.sort()
     imask = (1 << ibits) - 1
-    (g_s, p_s, s_s, own, run_start, run_end, own_point, front, back, d_front, d_back,
-     leader, follower) = _neighbours(keys, pos, src, vehicle.size, v_s, imask, qbits + ibits)
-    return VirtualLaneView(
-        vehicle=vehicle, env=env, lane=v_lane, s=v_s, point_group=g_s, point_pos=p_s,
-        point_vehicle=s_s, point_own=own, point_run_start=run_start, point_run_end=run_end,
-        own_point=own_point, front_point=front, back_point=back, d_front=d_front,
-        d_back=d_back, leader=leader, follower=follower,
-    )
+    out = {name: bufs[name][:size if per_point else n] for name, _dtype, per_point in _BUFFERS
+           if name not in ("group", "pos", "src", "keys")}
+    _neighbours(keys, bufs["pos"], bufs["src"], n, out["s"], imask, qbits + ibits,
+                out["point_group"], out["point_pos"], out["point_vehicle"], out["point_own"],
+                out["point_run_start"], out["point_run_end"], out["own_point"],
+                out["front_point"], out["back_point"], out["d_front"], out["d_back"],
+                out["leader"], out["follower"])
+    return VirtualLaneView(**out)

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from mivecc_env.sim import graph_kernel
 from mivecc_env.sim.network import GridNetwork
-from mivecc_env.sim.view_kernel import build_view_fast
+from mivecc_env.sim.view_kernel import ViewWorkspace, build_view_fast
 
 IntArray = NDArray[np.int64]
 FloatArray = NDArray[np.float64]
@@ -125,16 +125,20 @@ def build_view(
     active: NDArray[np.bool_],
     lane: IntArray,
     s: FloatArray,
+    workspace: ViewWorkspace | None = None,
 ) -> VirtualLaneView:
     """Build the sorted virtual-lane view of a batch of environments.
 
     Runs the compiled kernel of :mod:`mivecc_env.sim.view_kernel` when numba is installed
     (identical result, several times faster), else :func:`build_view_reference`. Arguments as
-    there.
+    there; with ``workspace`` the compiled view's arrays live in its reused buffers (valid
+    until the second build after this one, see
+    :class:`~mivecc_env.sim.view_kernel.ViewWorkspace`).
     """
     candidate = window_m + clear_m + 2.0 * network.lane_offset_m < network.segment_length_m
     view = build_view_fast(
-        network, window_m, clear_m, active, lane, s, 1.0 / POSITION_RESOLUTION_M, candidate
+        network, window_m, clear_m, active, lane, s, 1.0 / POSITION_RESOLUTION_M, candidate,
+        workspace,
     )
     return view if view is not None else build_view_reference(
         network, window_m, clear_m, active, lane, s
