@@ -375,7 +375,7 @@ class Simulator:
             s, v, s_new, out = self._move(view, edge_accel, cloud_accel, signal_phase, raw_edge)
         t0 = self.env_time_s  # (B,) each environment's own clock
         t1 = t0 + c.dt_s
-        self._prev_s = (flat, s)
+        self._prev_s = (flat.copy(), s)  # the view's buffers are reused two builds on
 
         events = self._no_events()
         p = self.passing

@@ -169,10 +169,11 @@ class ViewWorkspace:
     The compiled passes write into these buffers instead of returning fresh arrays (each
     array a numba kernel returns costs a Python-side boxing call). The view of a call is
     made of slices of one of two buffer sets used in turn, so the view returned by the
-    previous call stays intact while the next one is built; the view two calls back is
-    overwritten. Use it only where no view outlives the next build (the simulator's own view:
-    ``Simulator.view`` is valid until the step after next). Buffers grow (never shrink) to
-    the largest batch seen.
+    previous call stays intact while the next one is built; the view two builds back is
+    overwritten. Use it only where no view outlives the next build: the simulator's own view
+    (``Simulator.view``, rebuilt by every ``step`` and ``reset_at``; the simulator copies the
+    one array it keeps for the next step). Buffers grow (never shrink) to the largest batch
+    seen.
     """
 
     def __init__(self) -> None:
