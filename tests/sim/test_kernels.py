@@ -188,3 +188,24 @@ def test_released_check_on_the_rows_with_events_equals_the_whole_batch(seed: int
         sim.network, cfg, sim.active[envs], sim.lane[envs], sim.s[envs],
         _rows_of_slots(prev, envs, 5, sim.capacity))
     np.testing.assert_array_equal(part, whole[envs])
+
+
+def test_view_buffers_reused_keep_the_previous_view() -> None:
+    """The simulator's view lives in reused buffers (view_kernel.ViewWorkspace): every view
+    equals a fresh reference build, and the view before a step or a partial reset is still
+    intact after it; the buffers grow with the capacity."""
+    cfg = MiVeCCConfig(rows=2, cols=2, density_vplh=2100.0)
+    sim = Simulator(cfg, batch_size=3, seed=4, capacity=8)
+    for t in range(120):
+        before = sim.view
+        kept = dataclasses.replace(
+            before, **{f.name: getattr(before, f.name).copy() for f in dataclasses.fields(before)})
+        if t % 37 == 36:
+            sim.reset_at([t % 3], [t])
+        else:
+            sim.step()
+        _assert_same_view(before, kept)  # the view one build back is untouched by this one
+        args = (sim.network, cfg.projection_window_m, cfg.projection_clear_m, sim.active,
+                sim.lane, sim.s)
+        _assert_same_view(sim.view, build_view_reference(*args))
+    assert sim.capacity > 8 and sim.view.n_vehicles > 0
