@@ -25,7 +25,7 @@ import numpy as np
 
 from mivecc_env.sim._numba import HAVE_NUMBA, njit
 
-__all__ = ["HAVE_NUMBA", "build", "select_per_group"]
+__all__ = ["HAVE_NUMBA", "build", "select_capped_desc", "select_nodes", "select_per_group"]
 
 
 @njit
@@ -170,6 +170,8 @@ def _less(a, b):  # pragma: no cover - compiled
 
 @njit
 def _select(group, key, n_groups, k):  # pragma: no cover - compiled
+    """(3, n_out) rows (index, group, column) of the selection (one array: each array a
+    kernel returns costs a boxing call)."""
     n = group.shape[0]
     count = np.zeros(n_groups + 1, np.int64)
     for i in range(n):
@@ -186,9 +188,10 @@ def _select(group, key, n_groups, k):  # pragma: no cover - compiled
         if g >= 0:
             members[start[g]] = i
             start[g] += 1
-    out_idx = np.empty(n_out, np.int64)
-    out_group = np.empty(n_out, np.int64)
-    out_col = np.empty(n_out, np.int64)
+    out = np.empty((3, n_out), np.int64)
+    out_idx = out[0]
+    out_group = out[1]
+    out_col = out[2]
     buf_key = np.empty(max(k, 1), np.float64)
     buf_idx = np.empty(max(k, 1), np.int64)
     m_out = 0
@@ -216,7 +219,40 @@ def _select(group, key, n_groups, k):  # pragma: no cover - compiled
             out_group[m_out] = g
             out_col[m_out] = c
             m_out += 1
-    return out_idx, out_group, out_col
+    return out
+
+
+@njit
+def _select_nodes(env, area, n_per_env, key, k):  # pragma: no cover - compiled
+    """:func:`_select` with ``group = env * n_per_env + area`` (-1 where ``area < 0``) and
+    ``n_groups = (max(env) + 1) * n_per_env`` computed here."""
+    n = env.shape[0]
+    group = np.empty(n, np.int64)
+    top = -1
+    for i in range(n):
+        group[i] = env[i] * n_per_env + area[i] if area[i] >= 0 else -1
+        if env[i] > top:
+            top = env[i]
+    return _select(group, key, (top + 1) * n_per_env if n else 0, k)
+
+
+@njit
+def _select_capped_desc(env, eligible, value, cap, k):  # pragma: no cover - compiled
+    """:func:`_select` of the ``k`` highest ``min(value, cap)`` per environment among the
+    ``eligible`` vehicles (all if ``eligible`` is empty): the key is ``-np.minimum(value,
+    cap)`` (NaN stays NaN) and the group the environment (-1 where not eligible)."""
+    n = env.shape[0]
+    group = np.empty(n, np.int64)
+    key = np.empty(n, np.float64)
+    use = eligible.shape[0] > 0
+    top = -1
+    for i in range(n):
+        group[i] = env[i] if (not use or eligible[i]) else -1
+        x = value[i]
+        key[i] = -(x if (x < cap or x != x) else cap)
+        if env[i] > top:
+            top = env[i]
+    return _select(group, key, top + 1 if n else 0, k)
 
 
 def select_per_group(
@@ -233,7 +269,31 @@ def select_per_group(
     Returns:
         (index, group, column) of each selected element, by group then column.
     """
-    return _select(group, key, n_groups, k)
+    idx, grp, col = _select(group, key, n_groups, k)
+    return idx, grp, col
+
+
+def select_nodes(
+    env: np.ndarray, area: np.ndarray, n_per_env: int, key: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`select_per_group` with ``group = env * n_per_env + area`` (left out where
+    ``area < 0``) and ``n_groups = (max(env) + 1) * n_per_env`` (0 if empty), in one call."""
+    idx, grp, col = _select_nodes(env, area, int(n_per_env), key, int(k))
+    return idx, grp, col
+
+
+_NO_BOOL = np.zeros(0, dtype=np.bool_)
+
+
+def select_capped_desc(
+    env: np.ndarray, eligible: np.ndarray | None, value: np.ndarray, cap: float, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`select_per_group` with ``key = -np.minimum(value, cap)`` and ``group = env``
+    (left out where not ``eligible``; all eligible if None), ``n_groups = max(env) + 1``:
+    the ``k`` highest capped values per environment, in one call."""
+    idx, grp, col = _select_capped_desc(env, _NO_BOOL if eligible is None else eligible,
+                                        value, float(cap), int(k))
+    return idx, grp, col
 
 
 @njit

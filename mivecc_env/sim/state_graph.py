@@ -94,10 +94,8 @@ def select_edge_decisions(
     """
     if area is None:
         area = network.control_area(view.lane, view.s)
-    if graph_kernel.HAVE_NUMBA:
-        group = np.where(area >= 0, view.env * network.n_intersections + area, -1)
-        n_groups = (int(view.env.max()) + 1) * network.n_intersections if view.env.size else 0
-        return graph_kernel.select_per_group(group, sv, n_groups, k)
+    if graph_kernel.HAVE_NUMBA:  # groups env * n_intersections + area, top-k: one call
+        return graph_kernel.select_nodes(view.env, area, network.n_intersections, sv, k)
     inside = np.flatnonzero(area >= 0)
     node = view.env[inside] * network.n_intersections + area[inside]
     # Exact two-key sort (node, then SV; ties keep view order): a float composite key such as
@@ -145,10 +143,8 @@ def select_cloud_decisions(
     Args:
         eligible: (n,) the vehicles that may be picked (:func:`cloud_population`); all if None.
     """
-    if graph_kernel.HAVE_NUMBA:
-        n_groups = int(view.env.max()) + 1 if view.env.size else 0
-        group = view.env if eligible is None else np.where(eligible, view.env, -1)
-        return graph_kernel.select_per_group(group, -np.minimum(di, di_max), n_groups, k)
+    if graph_kernel.HAVE_NUMBA:  # key -min(di, di_max), groups the environments: one call
+        return graph_kernel.select_capped_desc(view.env, eligible, di, di_max, k)
     if eligible is not None:
         # Select among the eligible vehicles only (the selection reads ``view.env``).
         cand = np.flatnonzero(eligible)

@@ -74,9 +74,10 @@ def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_b
                  min_d, alpha_d, thr, alpha_acc):  # pragma: no cover
     """:func:`_safety_inputs` plus the arguments of the safety value's two logs."""
     n = vehicle.size
-    ttc = np.empty(n, np.float64)
-    acc = np.empty(n, np.float64)
-    logs = np.empty(2 * n, np.float64)  # d / alpha_d, then min(d_front / thr, alpha_acc)
+    out = np.empty(4 * n, np.float64)  # ttc, acc, logs: one array returned (one boxing call)
+    ttc = out[:n]
+    acc = out[n:2 * n]
+    logs = out[2 * n:]  # d / alpha_d, then min(d_front / thr, alpha_acc)
     n_sensitive = 0
     for i in range(n):
         v = v_all[vehicle[i]]
@@ -99,7 +100,7 @@ def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_b
         logs[i] = (d if d > min_d else min_d) / alpha_d
         r = (df if df > min_d else min_d) / thr
         logs[n + i] = r if r < alpha_acc else alpha_acc
-    return ttc, acc, logs, n_sensitive
+    return out, n_sensitive
 
 
 @njit
@@ -138,11 +139,13 @@ def safety_fast(
     if (not HAVE_NUMBA or c.sv_d_epsilon > 0.0 or c.sv_acc_epsilon > 0.0
             or c.sv_no_front_distance_m is not None):
         return None
-    ttc, acc, logs, n_sensitive = _safety_prep(
+    prep, n_sensitive = _safety_prep(
         v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
         c.sv_acc_source == "ego", MIN_DISTANCE_M, float(c.sv_alpha_d),
         float(c.sv_d_threshold_m), float(c.sv_alpha_acc),
     )
+    n = vehicle.size
+    ttc, acc, logs = prep[:n], prep[n:2 * n], prep[2 * n:]
     np.log(logs, out=logs)
     if n_sensitive:
         sensitive = np.flatnonzero((ttc > 0.0) & (ttc < 1.0))
@@ -293,12 +296,13 @@ def blocked_entries(
 
 @njit
 def _entry_plan(active, lane, s, queued, clearance):  # pragma: no cover
-    """(go (B, n_lanes), vehicles entering per env, free slots per env)."""
+    """(go (B, n_lanes), rows: vehicles entering per env, free slots per env)."""
     bsz, cap = active.shape
     n_lanes = queued.shape[1]
     go = np.zeros((bsz, n_lanes), np.bool_)
-    n_new = np.zeros(bsz, np.int64)
-    n_free = np.zeros(bsz, np.int64)
+    counts = np.zeros((2, bsz), np.int64)
+    n_new = counts[0]
+    n_free = counts[1]
     blocked = np.zeros(n_lanes, np.bool_)
     for b in range(bsz):
         any_want = False
@@ -318,7 +322,7 @@ def _entry_plan(active, lane, s, queued, clearance):  # pragma: no cover
             if queued[b, ln] > 0 and not blocked[ln]:
                 go[b, ln] = True
                 n_new[b] += 1
-    return go, n_new, n_free
+    return go, counts
 
 
 @njit
@@ -355,7 +359,9 @@ def entry_plan(
     closer than ``clearance_m`` to its entry), entries and free slots per environment."""
     if not HAVE_NUMBA:
         return None
-    return _entry_plan(active, lane, s, queued, float(clearance_m))
+    go, counts = _entry_plan(active, lane, s, queued, float(clearance_m))
+    n_new, n_free = counts
+    return go, n_new, n_free
 
 
 def place_entries(
@@ -404,11 +410,15 @@ def advance_arrivals(
 def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_all, a_all,
           lane_length, speed_sum, steps_sum, eta, sensible, entry_accel, gate, use_gate, omega,
           a_max, v_lo, v_hi, dt):  # pragma: no cover
-    """Rule, fusion and motion of every view vehicle (the reference's operations in order)."""
+    """Rule, fusion and motion of every view vehicle (the reference's operations in order).
+
+    Returns (rows s before, v before, s after; exited): two arrays, not four (each array a
+    kernel returns costs a boxing call)."""
     n = vehicle.size
-    s_old = np.empty(n, np.float64)
-    v_old = np.empty(n, np.float64)
-    s_new = np.empty(n, np.float64)
+    moved = np.empty((3, n), np.float64)
+    s_old = moved[0]
+    v_old = moved[1]
+    s_new = moved[2]
     out = np.empty(n, np.bool_)
     speed = np.zeros(speed_sum.size, np.float64)
     count = np.zeros(steps_sum.size, np.int64)
@@ -459,7 +469,7 @@ def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_al
     for b in range(speed_sum.size):
         speed_sum[b] += speed[b]
         steps_sum[b] += count[b]
-    return s_old, v_old, s_new, out
+    return moved, out
 
 
 _NO_FLOAT = np.zeros(0, dtype=np.float64)
@@ -489,7 +499,7 @@ def move(
     c = config
     gate = c.edge_sv_gate
     s_all, v_all, a_all = state
-    return _move(
+    moved, out = _move(
         vehicle, env, lane, sv, d_front, d_back,
         _NO_FLOAT if edge is None else edge, _NO_FLOAT if cloud is None else cloud,
         _NO_BOOL if raw is None else raw, s_all, v_all, a_all, lane_length, sums[0], sums[1],
@@ -497,6 +507,8 @@ def move(
         0.0 if gate is None else float(gate), gate is not None, float(c.omega),
         float(c.a_max_mps2), float(c.velocity_floor_mps), float(c.v_max_mps), float(c.dt_s),
     )
+    s_old, v_old, s_new = moved
+    return s_old, v_old, s_new, out
 
 
 @njit

@@ -109,6 +109,33 @@ def test_select_per_group_with_nan_and_signed_zero_keys() -> None:
         np.testing.assert_array_equal(col, rank[keep])
 
 
+def test_fused_selections_match_select_per_group() -> None:
+    # select_nodes / select_capped_desc compute the group and key inside the kernel: the same
+    # selection as select_per_group on the numpy-built group and key (NaN, caps, -1 areas).
+    rng = np.random.default_rng(2)
+    for _ in range(100):
+        n, n_per, k = (int(x) for x in (rng.integers(0, 300), rng.integers(1, 6),
+                                         rng.integers(1, 40)))
+        env = np.sort(rng.integers(0, 9, n))
+        area = rng.integers(-1, n_per, n)
+        value = np.round(rng.normal(size=n), 1)
+        value[rng.random(n) < 0.05] = np.nan
+        n_groups = (int(env.max()) + 1) * n_per if n else 0
+        ref = graph_kernel.select_per_group(np.where(area >= 0, env * n_per + area, -1),
+                                            value, n_groups, k)
+        got = graph_kernel.select_nodes(env, area, n_per, value, k)
+        for x, y in zip(got, ref, strict=True):
+            np.testing.assert_array_equal(x, y)
+        cap = 0.5
+        for eligible in (None, rng.random(n) < 0.7):
+            group = env if eligible is None else np.where(eligible, env, -1)
+            ref = graph_kernel.select_per_group(group, -np.minimum(value, cap),
+                                                int(env.max()) + 1 if n else 0, k)
+            got = graph_kernel.select_capped_desc(env, eligible, value, cap, k)
+            for x, y in zip(got, ref, strict=True):
+                np.testing.assert_array_equal(x, y)
+
+
 def test_density_indicator_and_area_centres_match_numpy() -> None:
     cfg = MiVeCCConfig(rows=3, cols=3, scheme="EEC")
     sim = Simulator(cfg, batch_size=4, seed=[1, 2, 3, 4], densities=[300.0, 900.0, 2100.0, 2700.0])
