@@ -160,10 +160,14 @@ def run(scene: types.ModuleType, arrivals: np.ndarray, steps: int) -> dict:
 
 
 def lockstep(scene: types.ModuleType, density: float, seed: int, steps: int,
-             overrides: dict | None = None) -> list[tuple[int, float]]:
+             overrides: dict | None = None,
+             flags: list[tuple[int, int, int]] | None = None) -> list[tuple[int, float]]:
     """Step the released simulator and ``model="released"`` (MiVeCC-E, the environment's
     streams of ``seed``) side by side; returns (step, largest position difference [m] over the
-    vehicles both have) for every step. Vehicles are matched by lane and arrival time."""
+    vehicles both have) for every step. Vehicles are matched by lane and arrival time.
+
+    ``flags``: if given, gets (step, vehicles the released code's check flagged, this
+    project's ``released_flagged`` increment) for every step where either is nonzero."""
     env = mivecc_v0.parallel_env(rows=3, cols=3, density=density, scheme="E", model="released",
                                  max_steps=steps + 10, **(overrides or {}))
     env.reset(seed=seed)
@@ -185,9 +189,13 @@ def lockstep(scene: types.ModuleType, density: float, seed: int, steps: int,
     for k in range(start, steps):
         if k > start:
             rel.step(np.zeros((9, 15)), np.zeros(60), 0)
-            rel.scene_update()
+            theirs_flagged = rel.scene_update()[1]
             rel.delete_vehicle()
+            before = int(sim.released_flagged[0])
             env.step(zero)
+            ours_flagged = int(sim.released_flagged[0]) - before
+            if flags is not None and (theirs_flagged or ours_flagged):
+                flags.append((k, int(theirs_flagged), ours_flagged))
         theirs = {(i, table[it["seq_in_lane"], i]): VALID_LEN_M - it["p"]
                   for i in range(12) for it in rel.veh_info[i]}
         m = sim.active[0]
@@ -282,15 +290,19 @@ def main(argv: list[str] | None = None) -> list[dict]:
         rows = []
         for density in args.density:
             for seed in args.seeds:
+                flags: list[tuple[int, int, int]] = []
                 res = lockstep(scene, density, seed, args.steps,
                                {"stale_corner_reset": False} if args.without_corner_reset
-                               else None)
+                               else None, flags)
                 first = next(((k, d) for k, d in res if d > 1e-6), None)
                 print(f"lockstep density {density:.0f} seed {seed}: "
                       + ("identical (< 1e-6 m) for all steps" if first is None else
                          f"first difference at step {first[0]}: {first[1]:.3g} m (inf: the "
                          "vehicle sets differ)"), flush=True)
-                rows.append({"density": density, "seed": seed, "first": first})
+                for k, theirs, ours in flags:
+                    print(f"    step {k}: flagged by the released check {theirs}, "
+                          f"released_check_collisions here +{ours}", flush=True)
+                rows.append({"density": density, "seed": seed, "first": first, "flags": flags})
         return rows
     make = {"env": env_arrivals, "batch": batch_arrivals, "poisson": poisson_arrivals}[
         args.streams]
