@@ -11,6 +11,8 @@ and seeds of a (grid, scheme) run as one batch of environments
   signalized baseline next to the paper's Table (3x3),
 * ``velocity_vs_density_<grid>.png`` - average travel velocity vs density per scheme with the
   upper bound,
+* a learned cloud runs with the ``cloud_period`` recorded in its checkpoint (the ``EEC+3``
+  ceiling's constant cloud decides every step),
 * in ``paper_table.md`` also, per grid: the released-style velocity (entry to 5 m past the last
   intersection centre, no entry wait; its improvement rates) and the near-miss measures of
   every scheme (``mivecc_env.sim.near_miss``).
@@ -71,8 +73,11 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
         run_scheme, kind = CEILINGS[scheme]
         k = getattr(MiVeCCConfig(), f"k_{kind}")
         policies[kind] = constant_policy(kind, 3.0, k)
+    # a learned cloud decides at the period it was trained with (cloud_period)
+    period = getattr(policies.get("cloud"), "config", {}).get("cloud_period", 1)
+    extra = {"cloud_period": period} if run_scheme == "EEC" and scheme not in CEILINGS else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
-                         progress=False, warn=False, model=model)
+                         progress=False, warn=False, model=model, **extra)
     for row in out:
         row.update(scheme=scheme, model=model)
     return out

@@ -31,7 +31,7 @@ from mivecc_agents.policies import actor_policy
 
 #: Columns of ``eval_log.csv``.
 EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
-               "collisions", "baseline_collisions", "metric")
+               "collisions", "baseline_collisions", "metric", "seeds", "steps")
 
 
 class PeriodicEvaluation:
@@ -114,7 +114,8 @@ class PeriodicEvaluation:
                 writer.writerow({"frames": frames, "updates": updates, "density": d,
                                  "velocity_mps": v, "baseline_mps": base, "gain_pct": gain,
                                  "collisions": coll, "baseline_collisions": base_coll,
-                                 "metric": self.metric})
+                                 "metric": self.metric, "seeds": len(self._args["seeds"]),
+                                 "steps": self._args["steps"]})
         plot_eval_curve(self.csv_path, self.png_path,
                         f"{self.scheme} vs {'E' if self.stage == 'edge' else 'EE'}")
         return float(np.nanmean(gains))
@@ -136,6 +137,8 @@ def plot_eval_curve(csv_path: Path, png_path: Path, title: str) -> Path:
                 label=f"{d:g} veh/lane/h")
     ax.axhline(0.0, color="grey", lw=0.8)
     metric = rows[0]["metric"] if rows else "avg_travel_velocity_mps"
+    if rows and "seeds" in rows[0]:
+        title += f" ({rows[0]['seeds']} seed(s) x {rows[0]['steps']} steps per density)"
     ax.set_xlabel("training frames [env steps]")
     ax.set_ylabel(f"gain in {metric} [%]")
     ax.set_title(f"deterministic evaluation: {title}")
