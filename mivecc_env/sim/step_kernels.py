@@ -176,10 +176,13 @@ def _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, n_cp,
     near = np.empty(n, np.int64)
     k = 0
     n_near = 0
+    # x * (1 / seg) rounds to another integer than the reference's x / seg only next to a half
+    # segment, far outside ``reach``: the same vehicles pass
+    inv_seg = 1.0 / seg
     for i in range(n):
         x = s_new[i]
         near[n_near] = i
-        n_near += (not exited[i]) & (np.abs(x - np.rint(x / seg) * seg) < reach)
+        n_near += (not exited[i]) & (np.abs(x - np.rint(x * inv_seg) * seg) < reach)
         ld = leader[i]
         if ld >= 0 and not exited[i] and not exited[ld] and s_new[ld] - x < length:
             pa[k] = i
@@ -196,6 +199,7 @@ def _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, n_cp,
     key = np.empty(m, np.int64)
     dd = np.empty(m, np.float64)
     j = 0
+    n_key = 0
     for o in range(n_near):
         i = near[o]
         ln = lane[i]
@@ -204,36 +208,29 @@ def _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, n_cp,
             if np.abs(delta) < length:
                 vi[j] = i
                 key[j] = env[i] * n_cp + lane_cp[ln, c]
+                n_key = max(n_key, key[j] + 1)
                 dd[j] = delta
                 j += 1
+    # The reference pairs each candidate with the next 7 of a stable sort by point: the next 7
+    # of its point's list in (vehicle, column) order, linked here without a sort.
+    head = np.full(n_key, -1, np.int64)
+    nxt = np.empty(m, np.int64)
+    for a in range(m - 1, -1, -1):
+        nxt[a] = head[key[a]]
+        head[key[a]] = a
+    ca = np.empty(7 * m, np.int64)
+    cb = np.empty(7 * m, np.int64)
     n_cross = 0
-    if m > 1:
-        order = np.argsort(key, kind="mergesort")
-        vs, ks, ds = vi[order], key[order], dd[order]
-        for shift in range(1, 8):  # as the reference: at most a few vehicles share a point
-            if shift >= m:
-                break
-            for a in range(m - shift):
-                b = a + shift
-                if (ks[a] == ks[b] and lane[vs[a]] != lane[vs[b]]
-                        and ds[a] ** 2 + ds[b] ** 2 < length ** 2):
-                    n_cross += 1
-        ca = np.empty(n_cross, np.int64)
-        cb = np.empty(n_cross, np.int64)
-        h = 0
-        for shift in range(1, 8):
-            if shift >= m:
-                break
-            for a in range(m - shift):
-                b = a + shift
-                if (ks[a] == ks[b] and lane[vs[a]] != lane[vs[b]]
-                        and ds[a] ** 2 + ds[b] ** 2 < length ** 2):
-                    ca[h] = vs[a]
-                    cb[h] = vs[b]
-                    h += 1
-    else:
-        ca = np.empty(0, np.int64)
-        cb = np.empty(0, np.int64)
+    for a in range(m):
+        b = nxt[a]
+        shift = 1
+        while b >= 0 and shift < 8:
+            if lane[vi[a]] != lane[vi[b]] and dd[a] ** 2 + dd[b] ** 2 < length ** 2:
+                ca[n_cross] = vi[a]
+                cb[n_cross] = vi[b]
+                n_cross += 1
+            b = nxt[b]
+            shift += 1
     # np.unique(np.sort(pairs, axis=1), axis=0): rows (lo, hi) in lexicographic order, once
     total = k + n_cross
     if total == 0:
@@ -264,8 +261,9 @@ def collision_pairs(
     """(k, 2) sorted unique view-index pairs closer than ``length`` [m] (see the reference).
 
     The candidates are the reference's (own-lane neighbours; crossing pairs within 7 places of
-    one another in a stable sort by conflict point); the unique sorted rows are made in the
-    kernel (an int64 code ``lo * n + hi`` per pair, sorted, repeats dropped).
+    one another in a stable sort by conflict point, found along a linked list per point); the
+    unique sorted rows are made in the kernel (an int64 code ``lo * n + hi`` per pair, sorted,
+    repeats dropped).
     """
     if not HAVE_NUMBA:
         return None
