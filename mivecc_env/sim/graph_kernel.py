@@ -60,6 +60,10 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
            view_vehicle, own_point, run_start, run_end, point_pos, point_vehicle, velocity,
            accel, v_lo, v_mul, a_mul, lane_cp_s, lane_length, use_area, centre, radius,
            inv_scale):  # pragma: no cover - compiled
+    for j in range(mask.shape[0]):  # every column empty, then the decisions' columns
+        mask[j] = 0.0
+        slot[j] = -1
+        view_index[j] = -1
     va = _channels(velocity, accel, v_lo, v_mul, a_mul)
     b_idx = np.empty(k + 1, np.int64)  # valid candidates behind / ahead of one decision
     b_dist = np.empty(k + 1, np.float64)  # (+ a sentinel)
@@ -144,7 +148,8 @@ def build(
     Args:
         cells: (N*K*K, 3) float32 zeros, cell ``(node, row, column)`` at
             ``(node * K + row) * K + column``.
-        mask / slot / view_index: (N*K,) flat outputs (0 / -1 / -1 where no decision).
+        mask / slot / view_index: (N*K,) flat outputs, overwritten whole (0 / -1 / -1 where
+            no decision; they may come uninitialised).
         decision / node / column: (D,) the selected view vehicles, their node and column.
         view: the :class:`~mivecc_env.sim.virtual_lane.VirtualLaneView`.
         velocity / accel: (n,) per view vehicle [m/s], [m/s^2].

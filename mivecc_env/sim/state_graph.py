@@ -188,31 +188,31 @@ def build_graphs(
             (:func:`mivecc_env.sim.graph_kernel.build`, bit-identical) or the numpy path;
             default: the kernel when numba is available.
     """
-    n_rows = batch * n_nodes
-    obs = np.zeros((n_rows, k, k, 3), dtype=np.float32)  # (node, row, column, channel)
-    mask = np.zeros((n_rows, k), dtype=np.float32)
-    slot = np.full((n_rows, k), -1, dtype=np.int64)
-    view_index = np.full((n_rows, k), -1, dtype=np.int64)
     shape = (batch, n_nodes, k)
-
-    def finish() -> StateGraphs:
-        return StateGraphs(obs.reshape(*shape, k, 3), mask.reshape(shape), slot.reshape(shape),
-                           view_index.reshape(shape))
-
-    if decision.size == 0:
-        return finish()
-
+    obs = np.zeros((*shape, k, 3), dtype=np.float32)  # (env, node, row, column, channel)
     v_lo = config.velocity_floor_mps
     inv_scale = 1.0 / position_scale_m
     v_mul = 2.0 / (config.v_max_mps - v_lo)
     a_mul = 1.0 / accel_scale_mps2(config)
     if use_kernel is None:
         use_kernel = graph_kernel.HAVE_NUMBA
-    if use_kernel:
+    if use_kernel and decision.size:  # the kernel fills mask, slot and view_index whole
+        mask = np.empty(shape, dtype=np.float32)
+        slot = np.empty(shape, dtype=np.int64)
+        view_index = np.empty(shape, dtype=np.int64)
         graph_kernel.build(obs.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
                            view_index.reshape(-1), k, decision, node, column, view, velocity,
                            accel, v_lo, v_mul, a_mul, network.lane_cp_s, network.lane_length,
                            area_centre_s, area_radius_m, inv_scale)
+        return StateGraphs(obs, mask, slot, view_index)
+    mask = np.zeros(shape, dtype=np.float32)
+    slot = np.full(shape, -1, dtype=np.int64)
+    view_index = np.full(shape, -1, dtype=np.int64)
+
+    def finish() -> StateGraphs:
+        return StateGraphs(obs, mask, slot, view_index)
+
+    if decision.size == 0:
         return finish()
 
     s_d = view.s[decision]
