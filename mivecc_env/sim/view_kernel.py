@@ -179,6 +179,9 @@ class ViewWorkspace:
     def __init__(self) -> None:
         self._sets: list[dict[str, np.ndarray]] = [{}, {}]
         self._turn = 0
+        #: arguments and result of the last ``_layout`` (the key layout of the batch shape)
+        self.layout_key: tuple | None = None
+        self.layout: tuple[int, int, int] | None = None
 
     def take(self, n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
         """The next buffer set, with room for ``n_vehicles`` vehicles and ``n_points``
@@ -189,6 +192,24 @@ class ViewWorkspace:
             bufs = _allocate(n_vehicles, n_points)
             self._sets[self._turn] = bufs
         return bufs
+
+
+def _layout(
+    network: GridNetwork, window_m: float, clear_m: float, bsz: int, cap: int, q_scale: float,
+    candidate: bool,
+) -> tuple[int, int, int] | None:
+    """(conflict columns tested per vehicle, position bits, point-index bits) of the packed
+    key, or None where the batch is too large for it."""
+    n_groups = bsz * network.n_lanes
+    if n_groups > 1 << 16:  # the reference sorts such batches with a float argsort
+        return None
+    n_col = 2 if candidate else network.lane_cp_s.shape[1]
+    reach = float(network.lane_length.max()) + clear_m + window_m
+    qbits = _bits(int(reach * q_scale * 1.001) + 2)
+    ibits = _bits(bsz * cap * (1 + n_col))
+    if qbits > 32 or _bits(n_groups - 1) + qbits + ibits > 63:
+        return None
+    return n_col, qbits, ibits
 
 
 def build_view_fast(
@@ -206,17 +227,19 @@ def build_view_fast(
     if not HAVE_NUMBA:
         return None
     bsz, cap = active.shape
+    key = (network, float(window_m), float(clear_m), bsz, cap, float(q_scale), bool(candidate))
+    last = None if workspace is None else workspace.layout_key
+    if last is not None and last[0] is network and last[1:] == key[1:]:
+        layout = workspace.layout
+    else:
+        layout = _layout(*key)
+        if workspace is not None:
+            workspace.layout_key, workspace.layout = key, layout
+    if layout is None:
+        return None
+    n_col, qbits, ibits = layout
     n_lanes = network.n_lanes
-    n_groups = bsz * n_lanes
-    if n_groups > 1 << 16:  # the reference sorts such batches with a float argsort
-        return None
-    n_col = 2 if candidate else network.lane_cp_s.shape[1]
-    reach = float(network.lane_length.max()) + clear_m + window_m
-    qbits = _bits(int(reach * q_scale * 1.001) + 2)
     n_slots = bsz * cap
-    ibits = _bits(n_slots * (1 + n_col))
-    if qbits > 32 or _bits(n_groups - 1) + qbits + ibits > 63:
-        return None
     if workspace is None:
         bufs = _allocate(n_slots, n_slots * (1 + n_col))
     else:
