@@ -206,18 +206,21 @@ class NearMissStats:
             return
         net = self.network
         if self.use_kernel:
-            t0 = np.broadcast_to(np.asarray(t0_s, dtype=np.float64), (self.batch_size,))
+            t0 = t0_s  # the core's (B,) clocks as they are; else broadcast and copied
+            if not (isinstance(t0, np.ndarray) and t0.dtype == np.float64
+                    and t0.shape == (self.batch_size,) and t0.flags.c_contiguous):
+                t0 = np.ascontiguousarray(np.broadcast_to(
+                    np.asarray(t0_s, dtype=np.float64), (self.batch_size,)))
             n, n_on, w = view.n_vehicles, net.lane_centres_s.shape[1], self._scratch
-            w.ensure(n, 4 * n * n_on, 2 * n * n_on)
+            w.ensure(n, n_on)
             near_miss_kernel.record(
                 view.env, view.lane, view.s, s_new, v_old, view.front_point, view.point_vehicle,
-                view.d_front, view.leader, gone, np.ascontiguousarray(t0), float(dt_s),
+                view.d_front, view.leader, gone, t0, float(dt_s),
                 self._mark_pos_flat, self._mark_cp_flat, self._cp_s_flat,
                 self._cp_side_key_flat, self._lane_side, self._geom, n_on, net.n_cp,
                 self._local, _N_TTC_BINS, self.min_ttc_s, self.ttc_hist, self.min_pet_s,
                 self.pet_samples, self.pet_under, self.last_leave_s, self.last_leave_side,
-                self.min_distance_m, w.step_min, w.sq, w.count, w.ev_int, w.ev_float,
-                w.touched, w.touched_env, w.cand, w.cand_closing,
+                self.min_distance_m, w.ints, w.floats,
             )
             self._far_pairs(view, s_new, gone)
             return

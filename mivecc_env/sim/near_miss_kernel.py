@@ -16,7 +16,8 @@ paths, the latter at every step of long busy runs):
   processed at once, and only the events of points with several are sorted (stably, by the same
   float key: the same order per point as the reference's sort).
 * Crossing pairs: only the (point, side) cells written this step can lower a minimum (an unwritten
-  cell is ``inf``, and so is any ``hypot`` with it), so only those are read and then cleared.
+  cell is ``inf``, and so is any ``hypot`` with it): each written cell is listed once, the
+  points with both cells written are read, and the listed cells cleared.
 
 Scratch buffers (:class:`NearMissScratch`) are owned by the caller and reused across steps: no
 array is allocated per call. Returns False without numba (the caller then runs the reference).
@@ -32,45 +33,55 @@ from mivecc_env.sim._numba import HAVE_NUMBA, njit
 class NearMissScratch:
     """Reusable work arrays of the kernel for ``batch_size`` environments of ``n_cp`` points.
 
-    ``sq`` (B * n_cp * 2,) is ``inf`` between calls and ``count`` (B * n_cp,) zero; the event
-    arrays grow with the number of vehicles (:meth:`ensure`).
+    Two flat buffers (one int64, one float64: few arguments keep numba's per-call cost low at
+    B = 1) that the kernel slices (layout in ``_record``). Their heads persist between calls:
+    the per-point event counts (B * n_cp) are zero and the crossing-pair cells (B * n_cp * 2)
+    ``inf``; the rest grows with the number of vehicles (:meth:`ensure`).
     """
 
     def __init__(self, batch_size: int, n_cp: int) -> None:
-        self.sq = np.full(batch_size * n_cp * 2, np.inf)
-        self.count = np.zeros(batch_size * n_cp, dtype=np.int64)
-        self.step_min = np.empty(batch_size)
-        self.ev_int = np.empty((0, 5), dtype=np.int64)
-        self.ev_float = np.empty((0, 2), dtype=np.float64)
-        self.touched = np.empty(0, dtype=np.int64)
-        self.touched_env = np.empty(0, dtype=np.int64)
-        self.cand = np.empty(0, dtype=np.int64)
-        self.cand_closing = np.empty(0, dtype=np.float64)
+        self.n_points = batch_size * n_cp
+        self.batch_size = batch_size
+        self.ints = np.zeros(0, dtype=np.int64)
+        self.floats = np.zeros(0, dtype=np.float64)
+        self.ensure(0, 1)
 
-    def ensure(self, n_vehicles: int, n_events: int, n_cells: int) -> None:
-        """Room for ``n_vehicles``, ``n_events`` PET events and ``n_cells`` crossing-pair writes."""
-        if self.cand.shape[0] < n_vehicles:
-            self.cand = np.empty(max(n_vehicles, 2 * self.cand.shape[0]), dtype=np.int64)
-            self.cand_closing = np.empty(self.cand.shape[0], dtype=np.float64)
-        if self.ev_int.shape[0] < n_events:
-            size = max(n_events, 2 * self.ev_int.shape[0])
-            self.ev_int = np.empty((size, 5), dtype=np.int64)
-            self.ev_float = np.empty((size, 2), dtype=np.float64)
-        if self.touched.shape[0] < n_cells:
-            self.touched = np.empty(max(n_cells, 2 * self.touched.shape[0]), dtype=np.int64)
-            self.touched_env = np.empty(self.touched.shape[0], dtype=np.int64)
+    def ensure(self, n_vehicles: int, n_on: int) -> None:
+        """Room for ``n_vehicles`` on lanes of ``n_on`` intersections (heads kept clean)."""
+        n, cap, cells = n_vehicles, 4 * n_vehicles * n_on, 2 * n_vehicles * n_on
+        need_int = self.n_points + n + 2 * cells + 5 * cap
+        if self.ints.size < need_int:
+            self.ints = np.zeros(max(need_int, 2 * self.ints.size), dtype=np.int64)
+        need_float = 2 * self.n_points + self.batch_size + n + 2 * cap
+        if self.floats.size < need_float:
+            self.floats = np.full(max(need_float, 2 * self.floats.size), np.inf)
 
 
 @njit
 def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, gone, t0, dt,
             mark_pos, mark_cp, cp_s, cp_key, lane_side, geom, n_on, n_cp, local_ok, n_bins,
             min_ttc, hist, min_pet, pet_samples, pet_under, last_t, last_side, min_dist,
-            step_min, sq, count, ev_int, ev_float, touched, touched_env, cand,
-            cand_closing):  # pragma: no cover - compiled
+            ints, floats):  # pragma: no cover - compiled
     seg, off, half, local_step, bin_inv, pet_threshold = (
         geom[0], geom[1], geom[2], geom[3], geom[4], geom[5])
     n = env.size
     b = min_ttc.size
+    # work arrays (see NearMissScratch): ints = count | cand | touched | touched_env | ev_int,
+    # floats = sq | step_min | cand_closing | ev_float
+    n_pt = b * n_cp
+    cap = 4 * n * n_on
+    cells = 2 * n * n_on
+    count = ints[:n_pt]
+    cand = ints[n_pt:n_pt + n]
+    touched = ints[n_pt + n:n_pt + n + cells]
+    touched_env = ints[n_pt + n + cells:n_pt + n + 2 * cells]
+    o0 = n_pt + n + 2 * cells
+    ev_int = ints[o0:o0 + 5 * cap].reshape((cap, 5))
+    sq = floats[:2 * n_pt]
+    step_min = floats[2 * n_pt:2 * n_pt + b]
+    cand_closing = floats[2 * n_pt + b:2 * n_pt + b + n]
+    o1 = 2 * n_pt + b + n
+    ev_float = floats[o1:o1 + 2 * cap].reshape((cap, 2))
     step_min[:] = np.inf
     max_move = -np.inf
     # The data-dependent tests (closing in? near a centre?) append the index to a list without
@@ -150,11 +161,13 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
                 if abs(d) < reach2:
                     q = e * (2 * n_cp) + cp_key[row, c]
                     d2 = d * d
-                    if d2 < sq[q]:
+                    old = sq[q]
+                    if old == np.inf:  # first write of the cell in this step: list it
+                        touched[n_sq] = q
+                        touched_env[n_sq] = e
+                        n_sq += 1
+                    if d2 < old:
                         sq[q] = d2
-                    touched[n_sq] = q
-                    touched_env[n_sq] = e
-                    n_sq += 1
     # PET: a point with one event at once; the others in the reference's (stable) order
     n_multi = 0
     for o in range(n_ev):
@@ -175,13 +188,15 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
                        pet_samples, pet_under, pet_threshold)
     for o in range(n_ev):
         count[ev_int[o, 0]] = 0
+    # A point's pair distance is finite only when both of its cells were written; each point
+    # is read once, from its first (even) cell.
     for o in range(n_sq):
         q = touched[o]
-        q0 = q - (q & 1)
-        pair = np.sqrt(sq[q0] + sq[q0 + 1])
-        e = touched_env[o]
-        if pair < step_min[e]:
-            step_min[e] = pair
+        if (q & 1) == 0 and sq[q + 1] != np.inf:
+            pair = np.sqrt(sq[q] + sq[q + 1])
+            e = touched_env[o]
+            if pair < step_min[e]:
+                step_min[e] = pair
     for o in range(n_sq):
         sq[touched[o]] = np.inf
     for e in range(b):
