@@ -250,7 +250,9 @@ class Simulator:
 
     @property
     def view(self) -> VirtualLaneView:
-        """Virtual-lane view of the current state."""
+        """Virtual-lane view of the current state. Its arrays live in reused buffers: they
+        stay valid through the next ``step``/``reset_at`` and are overwritten by the one after
+        (copy what must live longer)."""
         return self._view
 
     @property
