@@ -731,12 +731,15 @@ def _train(
 
     evaluate = _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {},
                                     out_dir, edge_ckpt_path, append=not write_header)
-    next_eval = state["frames"]
+    next_eval, last_eval = state["frames"], None
 
     def _maybe_evaluate(final: bool = False) -> None:
-        nonlocal next_eval
-        if evaluate is None or (state["frames"] < next_eval and not final):
+        """Evaluate when due; ``final``: unless the current weights were just evaluated."""
+        nonlocal next_eval, last_eval
+        due = state["frames"] != last_eval if final else state["frames"] >= next_eval
+        if evaluate is None or not due:
             return
+        last_eval = state["frames"]
         gain = evaluate(actor.module, state["frames"], state["updates"])
         if progress:
             import sys
@@ -819,9 +822,8 @@ def _train(
                         _save(metrics)
                     _maybe_evaluate()
                     t_last = time.perf_counter()
-            if not stop.requested and evaluate is not None and next_eval - p.eval_every_frames \
-                    < state["frames"]:
-                _maybe_evaluate(final=True)  # the final weights, unless just evaluated
+            if not stop.requested:
+                _maybe_evaluate(final=True)
         finally:
             if collector is not None:
                 with contextlib.suppress(Exception):  # an interrupted worker may be gone
