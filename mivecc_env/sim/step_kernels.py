@@ -72,31 +72,38 @@ def safety_inputs(
 @njit
 def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back, ego_acc,
                  min_d, alpha_d, thr, alpha_acc):  # pragma: no cover
-    """:func:`_safety_inputs` plus the arguments of the safety value's two logs."""
+    """:func:`_safety_inputs` plus the arguments of the safety value's two logs.
+
+    Two passes: the gathers (both neighbours read, the nearer one selected without a branch:
+    which one is nearer is a coin toss per vehicle, a branch on it mispredicts half the time),
+    then the arithmetic on contiguous arrays (vectorised by the compiler). ``ttc`` holds the
+    closing speed between the two."""
     n = vehicle.size
     out = np.empty(4 * n, np.float64)  # ttc, acc, logs: one array returned (one boxing call)
     ttc = out[:n]
     acc = out[n:2 * n]
     logs = out[2 * n:]  # d / alpha_d, then min(d_front / thr, alpha_acc)
+    for i in range(n):
+        k = vehicle[i]
+        v = v_all[k]
+        f, bk = front[i], back[i]
+        kf = vehicle[point_vehicle[f if f >= 0 else 0]]
+        kb = vehicle[point_vehicle[bk if bk >= 0 else 0]]
+        vf = v_all[kf] if f >= 0 else 0.0
+        vb = v_all[kb] if bk >= 0 else 0.0
+        ttc[i] = (v - vf) if d_front[i] <= d_back[i] else (vb - v)  # closing speed
+        if ego_acc:
+            acc[i] = a_all[k]
+        else:
+            acc[i] = a_all[kf] if f >= 0 else 0.0
     n_sensitive = 0
     for i in range(n):
-        v = v_all[vehicle[i]]
         df, db = d_front[i], d_back[i]
         d = df if df < db else db
-        if df <= db:
-            vf = v_all[vehicle[point_vehicle[front[i]]]] if front[i] >= 0 else 0.0
-            closing = v - vf
-        else:
-            vb = v_all[vehicle[point_vehicle[back[i]]]] if back[i] >= 0 else 0.0
-            closing = vb - v
-        t = d / closing if (closing > 0 and d != np.inf) else np.inf
+        closing = ttc[i]
+        t = d / closing if (closing > 0) & (d != np.inf) else np.inf
         ttc[i] = t
-        if t > 0.0 and t < 1.0:
-            n_sensitive += 1
-        if ego_acc:
-            acc[i] = a_all[vehicle[i]]
-        else:
-            acc[i] = a_all[vehicle[point_vehicle[front[i]]]] if front[i] >= 0 else 0.0
+        n_sensitive += (t > 0.0) & (t < 1.0)
         logs[i] = (d if d > min_d else min_d) / alpha_d
         r = (df if df > min_d else min_d) / thr
         logs[n + i] = r if r < alpha_acc else alpha_acc
@@ -104,23 +111,43 @@ def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_b
 
 
 @njit
+def _sensitive(ttc, n_sensitive):  # pragma: no cover
+    """Indices (ascending) of the ``n_sensitive`` TTCs in (0, 1) s."""
+    idx = np.empty(n_sensitive, np.int64)
+    k = 0
+    for i in range(ttc.size):
+        t = ttc[i]
+        if t > 0.0 and t < 1.0:
+            idx[k] = i
+            k += 1
+    return idx
+
+
+@njit
 def _safety_combine(logs, sensitive, sv_t_sensitive, d_front, acc, beta_d, beta_acc,
                     lambda_acc, sv_t_safe, sv_min, sv_max):  # pragma: no cover
-    """The safety value from the logs (same operations and order as ``safety_value``)."""
+    """The safety value from the logs (same operations and order as ``safety_value``): every
+    vehicle with SV_t = ``sv_t_safe`` (a loop the compiler vectorises), then the few
+    ``sensitive`` ones again with their own SV_t."""
     n = d_front.size
     sv = np.empty(n, np.float64)
-    k = 0
     for i in range(n):
-        sv_t = sv_t_safe
-        if k < sensitive.size and sensitive[k] == i:
-            sv_t = sv_t_sensitive[k]
-            k += 1
-        x = beta_d * logs[i] + sv_t
-        has_front = d_front[i] != np.inf
-        x = x + (lambda_acc * acc[i] * (beta_acc * logs[n + i]) if has_front else 0.0)
-        x = x if x > sv_min else sv_min
-        sv[i] = x if x < sv_max else sv_max
+        sv[i] = _sv_of(logs[i], logs[n + i], sv_t_safe, d_front[i], acc[i], beta_d, beta_acc,
+                       lambda_acc, sv_min, sv_max)
+    for k in range(sensitive.size):
+        i = sensitive[k]
+        sv[i] = _sv_of(logs[i], logs[n + i], sv_t_sensitive[k], d_front[i], acc[i], beta_d,
+                       beta_acc, lambda_acc, sv_min, sv_max)
     return sv
+
+
+@njit
+def _sv_of(log_d, log_acc, sv_t, d_front, acc, beta_d, beta_acc, lambda_acc, sv_min,
+           sv_max):  # pragma: no cover
+    x = beta_d * log_d + sv_t
+    x = x + (lambda_acc * acc * (beta_acc * log_acc) if d_front != np.inf else 0.0)
+    x = x if x > sv_min else sv_min
+    return x if x < sv_max else sv_max
 
 
 def safety_fast(
@@ -148,7 +175,7 @@ def safety_fast(
     ttc, acc, logs = prep[:n], prep[n:2 * n], prep[2 * n:]
     np.log(logs, out=logs)
     if n_sensitive:
-        sensitive = np.flatnonzero((ttc > 0.0) & (ttc < 1.0))
+        sensitive = _sensitive(ttc, n_sensitive)
         t = np.maximum(ttc[sensitive], MIN_TTC_S)
         sv_t = -((c.sv_alpha_t / np.tanh(t)) ** c.sv_beta_t)
     else:

@@ -129,6 +129,28 @@ def test_kernels_match_references_on_crowded_states(seed: int) -> None:
         np.testing.assert_array_equal(blocked, expect)
 
 
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("source", ["ego", "front"])
+def test_fused_safety_matches_safety_value(seed: int, source: str) -> None:
+    """``safety_fast`` (gathers, logs, tanh only where 0 < TTC < 1 s, fix-up of those) gives
+    ``safety_value`` of the reference inputs bit for bit, sensitive vehicles included."""
+    from mivecc_env.sim.safety import safety_value
+
+    cfg = MiVeCCConfig(rows=2, cols=2, sv_acc_source=source)
+    sim = _crowded(cfg, batch=3, per_env=150, seed=seed)
+    sim.v[:] = np.random.default_rng(seed).uniform(0, 15, sim.v.shape)  # fast closing too
+    view = build_view(sim.network, cfg.projection_window_m, cfg.projection_clear_m, sim.active,
+                      sim.lane, sim.s)
+    sv, ttc = step_kernels.safety_fast(
+        sim.v.ravel(), sim.a.ravel(), view.vehicle, view.point_vehicle, view.front_point,
+        view.back_point, view.d_front, view.d_back, cfg)
+    d, ttc_ref, acc = sim._safety_inputs_reference(view)
+    assert ((ttc_ref > 0) & (ttc_ref < 1)).sum() >= 5  # the tanh path is exercised
+    assert np.isinf(view.d_front).any()
+    np.testing.assert_array_equal(ttc, ttc_ref)
+    np.testing.assert_array_equal(sv, safety_value(d, ttc_ref, view.d_front, acc, cfg))
+
+
 def test_empty_network_view() -> None:
     sim = Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=3)
     args = (sim.network, 10.0, 5.0, sim.active, sim.lane, sim.s)
