@@ -105,13 +105,16 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
         m = s_new[i] - s_old[i]
         if m > max_move:
             max_move = m
-    # --- time to collision with the nearest point ahead, when closing in
+    # --- time to collision with the nearest point ahead, when closing in: the divisions
+    # first (a histogram cell chosen by a division just done stalls the loop), then the
+    # minimum and the histogram
     for o in range(n_close):
         i = cand[o]
-        closing = cand_closing[o]
         gap = d_front[i] if d_front[i] > 0.0 else 0.0  # level: 0, never < 0
-        ttc = gap / closing
-        e = env[i]
+        cand_closing[o] = gap / cand_closing[o]
+    for o in range(n_close):
+        ttc = cand_closing[o]
+        e = env[cand[o]]
         if ttc < min_ttc[e]:
             min_ttc[e] = ttc
         x = ttc * bin_inv
@@ -156,27 +159,39 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
                     ev_float[n_ev, 1] = t_rel + t0[e]
                     count[p] += 1
                     n_ev += 1
-            for c in range(2):
+            for c in range(2):  # without a branch: whether a cell is new is a coin toss
                 d = sn - cp_s[row, c]
-                if abs(d) < reach2:
-                    q = e * (2 * n_cp) + cp_key[row, c]
-                    d2 = d * d
-                    old = sq[q]
-                    if old == np.inf:  # first write of the cell in this step: list it
-                        touched[n_sq] = q
-                        touched_env[n_sq] = e
-                        n_sq += 1
-                    if d2 < old:
-                        sq[q] = d2
+                near_cp = abs(d) < reach2
+                q = e * (2 * n_cp) + cp_key[row, c] if near_cp else 0
+                d2 = d * d
+                old = sq[q]
+                touched[n_sq] = q  # listed when first written in this step
+                touched_env[n_sq] = e
+                n_sq += near_cp & (old == np.inf)
+                sq[q] = d2 if near_cp and d2 < old else old
     # PET: a point with one event at once; the others in the reference's (stable) order
+
+    def pet_event(o):  # inlined (a call of a compiled function costs more than its work)
+        p = ev_int[o, 0]
+        if ev_int[o, 2] == 1:
+            last_t[p] = ev_float[o, 1]
+            last_side[p] = ev_int[o, 1]
+        elif last_side[p] + ev_int[o, 1] == 1:
+            pet = ev_float[o, 1] - last_t[p]
+            e = ev_int[o, 3]
+            if pet < min_pet[e]:
+                min_pet[e] = pet
+            pet_samples[e] += 1
+            if pet < pet_threshold:
+                pet_under[e] += 1
+
     n_multi = 0
     for o in range(n_ev):
         if count[ev_int[o, 0]] > 1:
             ev_int[n_multi, 4] = o
             n_multi += 1
         else:
-            _pet_event(o, ev_int, ev_float, last_t, last_side, min_pet, pet_samples, pet_under,
-                       pet_threshold)
+            pet_event(o)
     if n_multi:
         key = np.empty(n_multi, np.float64)
         for k in range(n_multi):
@@ -184,8 +199,7 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
             key[k] = ev_int[o, 0] * (2.0 * dt) + ev_float[o, 0]
         order = np.argsort(key, kind="mergesort")
         for k in range(n_multi):
-            _pet_event(ev_int[order[k], 4], ev_int, ev_float, last_t, last_side, min_pet,
-                       pet_samples, pet_under, pet_threshold)
+            pet_event(ev_int[order[k], 4])
     for o in range(n_ev):
         count[ev_int[o, 0]] = 0
     # A point's pair distance is finite only when both of its cells were written; each point
@@ -202,23 +216,6 @@ def _record(env, lane, s_old, s_new, v, front, point_vehicle, d_front, leader, g
     for e in range(b):
         if step_min[e] < min_dist[e]:
             min_dist[e] = step_min[e]
-
-
-@njit
-def _pet_event(o, ev_int, ev_float, last_t, last_side, min_pet, pet_samples, pet_under,
-               pet_threshold):  # pragma: no cover - compiled
-    p = ev_int[o, 0]
-    if ev_int[o, 2] == 1:
-        last_t[p] = ev_float[o, 1]
-        last_side[p] = ev_int[o, 1]
-    elif last_side[p] + ev_int[o, 1] == 1:
-        pet = ev_float[o, 1] - last_t[p]
-        e = ev_int[o, 3]
-        if pet < min_pet[e]:
-            min_pet[e] = pet
-        pet_samples[e] += 1
-        if pet < pet_threshold:
-            pet_under[e] += 1
 
 
 def record(*args: object) -> bool:
