@@ -12,6 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import cloud_reward_check
 import comparison
 import paper_table
 import released_reference
@@ -45,6 +46,19 @@ def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
     text = (merged / "paper_table.md").read_text()
     assert "EE vs E [%]" in text and "| 1500 |" in text
     assert "E released-style v [m/s]" in text and "| EE | 1500 |" in text
+
+
+def test_cloud_reward_check_ranks_constant_clouds(tmp_path: Path) -> None:
+    rows = cloud_reward_check.main(["--model", "released", "--rows", "1", "--cols", "1",
+                                    "--densities", "1500", "--seeds", "0", "--steps", "400",
+                                    "--skip", "100", "--out", str(tmp_path)])
+    by_name = {r["cloud"]: r for r in rows}
+    for a in cloud_reward_check.CONSTANTS_MPS2:
+        assert by_name[f"constant {a:+g}"]["mean_cloud_action_mps2"] == pytest.approx(a)
+    assert -3.0 <= by_name["shipped cloud"]["mean_cloud_action_mps2"] <= 3.0
+    assert by_name["constant -3"]["cloud_reward"] < by_name["constant +3"]["cloud_reward"]
+    text = (tmp_path / "cloud_reward_check_released.md").read_text()
+    assert text.count("| constant") == 4 and "| shipped cloud |" in text
 
 
 @pytest.mark.parametrize("new, old, expected", [(11.0, 10.0, 10.0), (9.0, 10.0, -10.0)])

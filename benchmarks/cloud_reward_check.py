@@ -1,0 +1,131 @@
+"""Does the cloud's training reward rank cloud behaviours like the metric does?
+
+Runs MiVeCC-EEC with the model's shipped edge policy and, as the cloud, constant actions
+(-3, 0, +1, +3 m/s^2 in every decision column) and the model's shipped cloud policy, all
+(density, seed) pairs of a variant as one batch. Prints, per variant, the mean stage-II
+reward per step (the cloud reward the trainer optimises, after ``--skip`` fill-up steps),
+the mean edge reward, the released-style velocity and this project's average travel
+velocity, strict collision events, and the shipped cloud's mean action over its real
+columns. If the reward orders the constant actions as the velocity does, a cloud that fails
+to reach the +3 ceiling fails for lack of learning, not because of its reward.
+
+Usage (about 1 min on an idle 2-core machine):
+    python benchmarks/cloud_reward_check.py --model released --out benchmarks/results
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from mivecc_agents.evaluation import scheme_overrides
+from mivecc_agents.policies import Policy, constant_policy, pretrained_policies
+from mivecc_env.batched import BatchedMiVeCCEnv
+from mivecc_env.no_data import mark_no_data
+
+CONSTANTS_MPS2 = (-3.0, 0.0, 1.0, 3.0)
+
+
+def run_variant(
+    model: str, rows: int, cols: int, densities: Sequence[float], seeds: Sequence[int],
+    steps: int, skip: int, edge: Policy, cloud: Policy,
+) -> dict[str, Any]:
+    """One batch of every (density, seed) pair with the given edge and cloud policies."""
+    pairs = [(float(d), int(s)) for d in densities for s in seeds]
+    b = len(pairs)
+    env = BatchedMiVeCCEnv(
+        batch_size=b, densities=[d for d, _ in pairs], observe={"edge", "cloud"}, rows=rows,
+        cols=cols, density=pairs[0][0], max_steps=steps,
+        **scheme_overrides("EEC", {"model": model}),
+    )
+    a_max = env.config.a_max_mps2
+    step = env.reset(seed=[s for _, s in pairs])
+    cloud_r = edge_r = 0.0
+    action_sum, action_n = 0.0, 0
+    for t in range(steps):
+        e = np.stack([edge(step.edge_obs[i], step.edge_mask[i]) for i in range(b)])
+        c = np.stack([cloud(step.cloud_obs[i][None], step.cloud_mask[i][None])[0]
+                      for i in range(b)])
+        c = np.clip(c.astype(np.float64), -a_max, a_max)
+        real = step.cloud_mask > 0
+        action_sum += float(c[real].sum())
+        action_n += int(real.sum())
+        step = env.step(np.clip(e.astype(np.float64), -a_max, a_max), c)
+        if t >= skip:
+            cloud_r += float(step.cloud_reward.mean())
+            edge_r += float(step.edge_reward.mean())
+    summary = env.summary()
+    per_env = [mark_no_data({k: float(v[j]) for k, v in summary.items()}, env.config)
+               for j in range(b)]
+    n = max(steps - skip, 1)
+    return {
+        "cloud_reward": cloud_r / n,
+        "edge_reward": edge_r / n,
+        "released_velocity_mps": float(np.mean([r["released_velocity_mps"] for r in per_env])),
+        "avg_travel_velocity_mps": float(np.mean([r["avg_travel_velocity_mps"]
+                                                  for r in per_env])),
+        "collisions": int(sum(r["collisions"] for r in per_env)),
+        "mean_cloud_action_mps2": action_sum / max(action_n, 1),
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", choices=("paper", "released"), default="released")
+    parser.add_argument("--rows", type=int, default=3)
+    parser.add_argument("--cols", type=int, default=3)
+    parser.add_argument("--densities", type=float, nargs="+", default=[1500.0, 2100.0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--skip", type=int, default=500,
+                        help="fill-up steps left out of the mean rewards")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = parser.parse_args(argv)
+    if not 0 <= args.skip < args.steps:
+        parser.error(f"--skip: must be in [0, --steps - 1] = [0, {args.steps - 1}], "
+                     f"got {args.skip}")
+    shipped = pretrained_policies(args.model)
+    grid = max(args.rows, args.cols)
+    variants: list[tuple[str, Policy]] = [
+        (f"constant {a:+g}", constant_policy("cloud", a, grid)) for a in CONSTANTS_MPS2
+    ]
+    variants.append(("shipped cloud", shipped["cloud"]))
+    rows = []
+    for name, cloud in variants:
+        t0 = time.perf_counter()
+        r = run_variant(args.model, args.rows, args.cols, args.densities, args.seeds,
+                        args.steps, args.skip, shipped["edge"], cloud)
+        rows.append({"cloud": name, **r})
+        print(f"{name:14s} cloud reward {r['cloud_reward']:+.4f}/step  "
+              f"v455 {r['released_velocity_mps']:.3f}  v {r['avg_travel_velocity_mps']:.3f} "
+              f"m/s  collisions {r['collisions']}  mean action "
+              f"{r['mean_cloud_action_mps2']:+.3f} m/s^2  ({time.perf_counter() - t0:.0f} s)",
+              flush=True)
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"cloud_reward_check_{args.model}.md"
+    lines = [
+        f"Command: `python benchmarks/cloud_reward_check.py --model {args.model} --rows "
+        f"{args.rows} --cols {args.cols} --densities {' '.join(f'{d:g}' for d in args.densities)}"
+        f" --seeds {' '.join(map(str, args.seeds))} --steps {args.steps} --skip {args.skip}`",
+        "",
+        "| cloud | cloud reward per step | edge reward per step | released-style v [m/s] | "
+        "avg travel v [m/s] | collisions | mean cloud action [m/s^2] |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {r['cloud']} | {r['cloud_reward']:+.4f} | {r['edge_reward']:+.4f} | "
+        f"{r['released_velocity_mps']:.3f} | {r['avg_travel_velocity_mps']:.3f} | "
+        f"{r['collisions']} | {r['mean_cloud_action_mps2']:+.3f} |" for r in rows
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
