@@ -98,15 +98,20 @@ class ArrivalProcess:
     def _draw(self, b: int, lane: int) -> None:
         """Append one chunk of arrival times to lane ``lane`` of environment ``b``."""
         cap = self.times.shape[2]
-        if self.generated[b, lane] + CHUNK - self.entered[b, lane] > cap:
+        generated = int(self.generated[b, lane])
+        if generated + CHUNK - self.entered[b, lane] > cap:
             self._grow()
             cap = self.times.shape[2]
-        draws = self._rngs[b][lane].exponential(self.mean_gap_s[b], CHUNK)
-        gaps = np.maximum(draws, self.min_headway_s)
-        times = self._last[b, lane] + np.cumsum(gaps)
-        idx = (self.generated[b, lane] + np.arange(CHUNK)) % cap
-        self.times[b, lane, idx] = times
-        self.generated[b, lane] += CHUNK
+        gaps = self._rngs[b][lane].exponential(self.mean_gap_s[b], CHUNK)
+        np.maximum(gaps, self.min_headway_s, out=gaps)
+        times = np.cumsum(gaps)
+        times += self._last[b, lane]  # last + cumulative gap (addition commutes exactly)
+        start = generated % cap
+        if start + CHUNK <= cap:  # always: the buffer is a multiple of CHUNK
+            self.times[b, lane, start:start + CHUNK] = times
+        else:
+            self.times[b, lane, (generated + np.arange(CHUNK)) % cap] = times
+        self.generated[b, lane] = generated + CHUNK
         self._last[b, lane] = times[-1]
 
     def _grow(self) -> None:

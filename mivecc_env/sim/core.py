@@ -370,25 +370,29 @@ class Simulator:
         c, view = self.config, self._view
         flat = view.vehicle
         lane = view.lane
-        moved = self._move_compiled(view, edge_accel, cloud_accel, raw_edge)
-        if moved is not None:
-            s, v, s_new, out = moved
-        else:
-            s, v, s_new, out = self._move(view, edge_accel, cloud_accel, signal_phase, raw_edge)
         t0 = self.env_time_s  # (B,) each environment's own clock
         t1 = t0 + c.dt_s
+        # n_out: (B,) exits when the compiled move also recorded passing times and exits
+        moved = self._move_compiled(view, edge_accel, cloud_accel, raw_edge, t0, t1)
+        if moved is not None:
+            s, v, s_new, out, n_out = moved
+        else:
+            s, v, s_new, out = self._move(view, edge_accel, cloud_accel, signal_phase, raw_edge)
+            n_out = None
         self._prev_s = (flat.copy(), s)  # the view's buffers are reused two builds on
 
         events = self._no_events()
         p = self.passing
-        if not self.t_enter.flags.c_contiguous or not step_kernels.record_passing(
+        if n_out is not None:
+            events.exited = n_out
+        elif not self.t_enter.flags.c_contiguous or not step_kernels.record_passing(
             view.env, lane, flat, s, s_new, self.t_enter.ravel(), p.mark_s, t0, c.dt_s,
             (p.count, p.sum_time_s, p.sum_length_m),
         ):
             p.record(view.env, lane, s, s_new, self.t_enter.ravel()[flat], t0, c.dt_s)
         self.near_miss.record_step(view, v, s_new, out, t0, c.dt_s)
         flat_ok = all(x.flags.c_contiguous for x in (self.active, self.t_arrive, self.t_enter))
-        if out.any():
+        if n_out is None and out.any():
             n_out = None if not flat_ok else step_kernels.record_exits(
                 out, view.env, flat, lane, s, s_new, self.network.lane_length, t0, t1,
                 self.t_arrive.ravel(), self.t_enter.ravel(), self.active.ravel(),
@@ -403,7 +407,7 @@ class Simulator:
         self._remove_collisions(view, s_new, out, events)
 
         self.step_count += 1
-        self._enter_vehicles(t1, events)
+        self._enter_vehicles(t1, events, s_new)
         self.last_events = events
         self._refresh_view()
         return events
@@ -411,9 +415,12 @@ class Simulator:
     def _move_compiled(
         self, view: VirtualLaneView, edge_accel: FloatArray | None,
         cloud_accel: FloatArray | None, raw_edge: NDArray[np.bool_] | None,
-    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_]] | None:
+        t0: FloatArray, t1: FloatArray,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, NDArray[np.bool_], IntArray | None] | None:
         """:meth:`_move` by the compiled kernel where the model is the plain unsignalized one
-        (no released-code rules, float64 actions); None elsewhere."""
+        (no released-code rules, float64 actions); None elsewhere. In the same pass the
+        passing times and the exits (``step_kernels.move``'s ``record``) when the arrays
+        allow it; the last item is then the (B,) exits, else None."""
         c = self.config
         if (c.control != "unsignalized" or self.controller is not None or c.header_rule
                 or c.sections or c.speed_reset or c.stale_action or c.same_lane_rule
@@ -427,11 +434,18 @@ class Simulator:
             return None  # the kernel writes through flat views
         raw = None if raw_edge is None or edge is None else np.asarray(raw_edge, dtype=bool)
         safety = self._safety
+        record = None
+        if all(x.flags.c_contiguous for x in (self.active, self.t_arrive, self.t_enter)):
+            p = self.passing
+            record = (t0, t1, p.mark_s, self.t_arrive.ravel(), self.t_enter.ravel(),
+                      self.active.ravel(), (p.count, p.sum_time_s, p.sum_length_m),
+                      (self.sum_travel_velocity, self.sum_travel_velocity_no_wait,
+                       self.sum_trip_time, self.sum_wait_time), self.exited)
         return step_kernels.move(
             view.vehicle, view.env, view.lane, safety.sv, safety.d_front, safety.d_back,
             None if edge is None else edge.ravel(), None if cloud is None else cloud.ravel(),
             raw, (self.s.ravel(), self.v.ravel(), self.a.ravel()), self.network.lane_length,
-            (self.sum_speed_samples, self.vehicle_steps), c,
+            (self.sum_speed_samples, self.vehicle_steps), c, record,
         )
 
     def _move(
@@ -578,24 +592,31 @@ class Simulator:
         )
         self.active.ravel()[view.vehicle[hit]] = False
 
-    def _enter_vehicles(self, now_s: FloatArray, events: StepEvents) -> None:
+    def _enter_vehicles(
+        self, now_s: FloatArray, events: StepEvents, s_new: FloatArray | None = None
+    ) -> None:
+        """Arrivals into the queues, queue heads into the network where the entry is clear.
+        ``s_new``: the positions after the step's move in view order (the compiled plan reads
+        the vehicles near the entries from the view)."""
         c = self.config
         self.arrivals.advance(now_s)
         queued = self.arrivals.queued
         # A lane is blocked while any of its vehicles is closer than the clearance to its entry.
         clearance = (signals.entry_clearance_m(c) if c.control != "unsignalized"
                      else c.entry_clearance_m)
-        plan = step_kernels.entry_plan(self.active, self.lane, self.s, queued, clearance)
+        view = self._view  # the step's view; s_new: its positions after the move
+        plan = None if s_new is None or not self.active.flags.c_contiguous else (
+            step_kernels.entry_plan(self.active.ravel(), view.vehicle, view.env, view.lane,
+                                    s_new, queued, clearance))
         if plan is not None:  # compiled: same slots, same order as below
             go, n_new, n_free = plan
             if (n_new > n_free).any():
                 self._grow(int(n_new.max() + (self.capacity - n_free).max()))
             step_kernels.place_entries(
-                go, self.arrivals.head_arrival_time(), now_s,
+                go, (self.arrivals.times, self.arrivals.entered), now_s,
                 (self.active, self.lane, self.s, self.v, self.a, self.t_arrive, self.t_enter,
                  self.vid), self.next_vid, c.v_init_mps, c.entry_accel_mps2,
             )
-            self.arrivals.pop(go)
             events.entered = n_new
             return
         want = queued > 0

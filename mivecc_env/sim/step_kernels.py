@@ -9,8 +9,9 @@
   (reference: ``safety_value`` of the reference inputs);
 * :func:`move` - end rule, fusion and bounded motion of the plain unsignalized model, state
   written in place (reference: ``Simulator._move``);
-* :func:`entry_plan` / :func:`place_entries` - queued vehicles entering free slots (reference:
-  the numpy body of ``Simulator._enter_vehicles``); :func:`advance_arrivals` - the counting loop
+* :func:`entry_plan` / :func:`place_entries` - queued vehicles entering free slots, the blocked
+  entries found from the step's view (reference: the numpy body of
+  ``Simulator._enter_vehicles``); :func:`advance_arrivals` - the counting loop
   of ``ArrivalProcess.advance``;
 * :func:`record_exits` / :func:`record_passing` - trip and passing-time accumulators
   (references: ``Simulator._record_exits``, ``PassingTimes.record``).
@@ -320,42 +321,37 @@ def blocked_entries(
 
 
 @njit
-def _entry_plan(active, lane, s, queued, clearance):  # pragma: no cover
+def _entry_plan(active, vehicle, env, lane, s_new, queued, clearance):  # pragma: no cover
     """(go (B, n_lanes), rows: vehicles entering per env, free slots per env)."""
-    bsz, cap = active.shape
-    n_lanes = queued.shape[1]
+    bsz, n_lanes = queued.shape
+    cap = active.size // bsz
     go = np.zeros((bsz, n_lanes), np.bool_)
+    blocked = np.zeros((bsz, n_lanes), np.bool_)
     counts = np.zeros((2, bsz), np.int64)
     n_new = counts[0]
     n_free = counts[1]
-    blocked = np.zeros(n_lanes, np.bool_)
+    for i in range(s_new.size):
+        if s_new[i] < clearance and active[vehicle[i]]:
+            blocked[env[i], lane[i]] = True
     for b in range(bsz):
-        any_want = False
+        used = 0
+        for k in range(b * cap, (b + 1) * cap):
+            used += active[k]
+        n_free[b] = cap - used
         for ln in range(n_lanes):
-            blocked[ln] = False
-            if queued[b, ln] > 0:
-                any_want = True
-        free = 0
-        for k in range(cap):
-            if active[b, k]:
-                if any_want and s[b, k] < clearance:
-                    blocked[lane[b, k]] = True
-            else:
-                free += 1
-        n_free[b] = free
-        for ln in range(n_lanes):
-            if queued[b, ln] > 0 and not blocked[ln]:
+            if queued[b, ln] > 0 and not blocked[b, ln]:
                 go[b, ln] = True
                 n_new[b] += 1
     return go, counts
 
 
 @njit
-def _place_entries(go, head_time, now, active, lane, s, v, a, t_arrive, t_enter, vid,
+def _place_entries(go, times, entered, now, active, lane, s, v, a, t_arrive, t_enter, vid,
                    next_vid, v_init, a_init):  # pragma: no cover
     """Put the head vehicle of every ``go`` lane into its environment's next free slot."""
     bsz = active.shape[0]
     n_lanes = go.shape[1]
+    ring = times.shape[2]
     for b in range(bsz):
         k = 0
         ordinal = 0
@@ -369,7 +365,8 @@ def _place_entries(go, head_time, now, active, lane, s, v, a, t_arrive, t_enter,
             s[b, k] = 0.0
             v[b, k] = v_init
             a[b, k] = a_init
-            t_arrive[b, k] = head_time[b, ln]
+            t_arrive[b, k] = times[b, ln, entered[b, ln] % ring]  # the queue's head
+            entered[b, ln] += 1
             t_enter[b, k] = now[b]
             vid[b, k] = next_vid[b] + ordinal
             ordinal += 1
@@ -377,26 +374,36 @@ def _place_entries(go, head_time, now, active, lane, s, v, a, t_arrive, t_enter,
 
 
 def entry_plan(
-    active: NDArray[np.bool_], lane: NDArray[np.int64], s: NDArray[np.float64],
-    queued: NDArray[np.int64], clearance_m: float,
+    active: NDArray[np.bool_], vehicle: NDArray[np.int64], env: NDArray[np.int64],
+    lane: NDArray[np.int64], s_new: NDArray[np.float64], queued: NDArray[np.int64],
+    clearance_m: float,
 ) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64]] | None:
     """(go, n_new, n_free): lanes whose queue head enters (queued and no vehicle of the lane
-    closer than ``clearance_m`` to its entry), entries and free slots per environment."""
+    closer than ``clearance_m`` to its entry), entries and free slots per environment.
+
+    The vehicles are read from the view of the step (``vehicle``, ``env``, ``lane``; ``s_new``
+    their positions after the move): every active vehicle is in it (a vehicle outside the
+    view would not move), those that left or collided are inactive in ``active`` (flat
+    (B * capacity,), C order). None when numba is missing."""
     if not HAVE_NUMBA:
         return None
-    go, counts = _entry_plan(active, lane, s, queued, float(clearance_m))
+    go, counts = _entry_plan(active, vehicle, env, lane, s_new, queued, float(clearance_m))
     n_new, n_free = counts
     return go, n_new, n_free
 
 
 def place_entries(
-    go: NDArray[np.bool_], head_time: NDArray[np.float64], now: NDArray[np.float64],
-    state: tuple[NDArray, ...], next_vid: NDArray[np.int64], v_init: float, a_init: float,
+    go: NDArray[np.bool_], ring: tuple[NDArray[np.float64], NDArray[np.int64]],
+    now: NDArray[np.float64], state: tuple[NDArray, ...], next_vid: NDArray[np.int64],
+    v_init: float, a_init: float,
 ) -> None:
     """Fill the slots of the entering vehicles in place (the reference's slot order: the
-    environment's free slots ascending, lanes ascending). ``state``: the simulator's (active,
-    lane, s, v, a, t_arrive, t_enter, vid) arrays; ``next_vid`` is advanced."""
-    _place_entries(go, head_time, now, *state, next_vid, float(v_init), float(a_init))
+    environment's free slots ascending, lanes ascending) and take them off their queues.
+    ``ring``: the arrival process's (times, entered) arrays (the head of a queue is
+    ``times[b, lane, entered % ring size]``; ``entered`` is advanced); ``state``: the
+    simulator's (active, lane, s, v, a, t_arrive, t_enter, vid) arrays; ``next_vid`` is
+    advanced."""
+    _place_entries(go, *ring, now, *state, next_vid, float(v_init), float(a_init))
 
 
 @njit
@@ -434,8 +441,11 @@ def advance_arrivals(
 @njit
 def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_all, a_all,
           lane_length, speed_sum, steps_sum, eta, sensible, entry_accel, gate, use_gate, omega,
-          a_max, v_lo, v_hi, dt):  # pragma: no cover
-    """Rule, fusion and motion of every view vehicle (the reference's operations in order).
+          a_max, v_lo, v_hi, dt, rec, t0, t1, mark_s, t_arrive, t_enter, active, passing,
+          trips, exited, n_out):  # pragma: no cover
+    """Rule, fusion and motion of every view vehicle (the reference's operations in order);
+    with ``rec`` also the passing times (``_record_passing``) and the exits
+    (``_record_exits``) of the vehicles that cross their mark / leave, in view order.
 
     Returns (rows s before, v before, s after; exited): two arrays, not four (each array a
     kernel returns costs a boxing call)."""
@@ -445,8 +455,11 @@ def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_al
     v_old = moved[1]
     s_new = moved[2]
     out = np.empty(n, np.bool_)
-    speed = np.zeros(speed_sum.size, np.float64)
-    count = np.zeros(steps_sum.size, np.int64)
+    bsz = speed_sum.size
+    speed = np.zeros(bsz, np.float64)
+    count = np.zeros(bsz, np.int64)
+    n_pass = np.zeros(bsz, np.int64)
+    part = np.zeros((6, bsz), np.float64)  # passing time, length; the four trip sums
     has_edge = edge.size > 0
     has_cloud = cloud.size > 0
     has_raw = raw.size > 0
@@ -490,11 +503,58 @@ def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_al
         b = env[i]
         speed[b] += vn
         count[b] += 1
-        out[i] = sn >= lane_length[lane[i]]
-    for b in range(speed_sum.size):
+        ln = lane[i]
+        length = lane_length[ln]
+        out[i] = sn >= length
+        if rec:
+            mark = mark_s[ln]
+            if s < mark and sn >= mark:
+                n_pass[b] += 1
+                part[0, b] += t0[b] + _cross_frac(mark, s, sn) * dt - t_enter[k]
+                part[1, b] += mark
+            if sn >= length:
+                _add_exit(part[2:], b, length, _exit_time(length, s, sn, t0[b], t1[b]),
+                          t_arrive[k], t_enter[k])
+                n_out[b] += 1
+                active[k] = False
+    for b in range(bsz):
         speed_sum[b] += speed[b]
         steps_sum[b] += count[b]
+    if rec:
+        for b in range(bsz):
+            passing[0][b] += n_pass[b]
+        for b in range(bsz):
+            passing[1][b] += part[0, b]
+            passing[2][b] += part[1, b]
+            for r in range(4):
+                trips[r][b] += part[2 + r, b]
+            exited[b] += n_out[b]
     return moved, out
+
+
+@njit
+def _cross_frac(mark, s_old, s_new):  # pragma: no cover
+    """Fraction of the step [0, 1] at which a vehicle moving s_old -> s_new reaches ``mark``."""
+    step = s_new - s_old
+    frac = (mark - s_old) / (step if step >= 1e-12 else 1e-12)
+    frac = frac if frac > 0.0 else 0.0
+    return frac if frac < 1.0 else 1.0
+
+
+@njit
+def _exit_time(length, s_old, s_new, t0, t1):  # pragma: no cover
+    """Time [s] at which a vehicle moving s_old -> s_new within (t0, t1) leaves its lane."""
+    return t0 + _cross_frac(length, s_old, s_new) * (t1 - t0)
+
+
+@njit
+def _add_exit(part, e, length, t_exit, t_arr, t_ent):  # pragma: no cover
+    """Add one exited vehicle to the (4, B) trip sums of environment ``e``."""
+    trip = t_exit - t_arr
+    part[0, e] += length / trip
+    part[1, e] += length / (t_exit - t_ent)
+    part[2, e] += trip
+    part[3, e] += t_ent - t_arr
 
 
 _NO_FLOAT = np.zeros(0, dtype=np.float64)
@@ -507,8 +567,8 @@ def move(
     edge: NDArray[np.float64] | None, cloud: NDArray[np.float64] | None,
     raw: NDArray[np.bool_] | None, state: tuple[NDArray[np.float64], ...],
     lane_length: NDArray[np.float64], sums: tuple[NDArray[np.float64], NDArray[np.int64]],
-    config: MiVeCCConfig,
-) -> tuple[NDArray[np.float64], ...] | None:
+    config: MiVeCCConfig, record: tuple | None = None,
+) -> tuple[NDArray, ...] | None:
     """One step of the plain unsignalized model for every view vehicle, compiled.
 
     ``end_accel`` (+ ``entry_action``), ``fuse`` (edge, raw edge, cloud, clip) and
@@ -516,14 +576,27 @@ def move(
     writes the new position, velocity and applied acceleration into ``state`` = the flat
     (s, v, a) arrays and adds the per-environment speed sum and vehicle count into ``sums``.
     ``edge`` / ``cloud``: flat (B * capacity,) actions (NaN: none) or None; ``raw``: (B,) or
-    None. Returns (s before, v before, s after, exited) per view vehicle, or None when numba
-    is missing. The caller checks that no rule outside these applies.
+    None. The caller checks that no rule outside these applies.
+
+    ``record``: also do :func:`record_passing` and :func:`record_exits` in the same pass
+    (same sums, same order): (t0, t1 (B,) [s], mark_s (n_lanes,) [m], flat t_arrive,
+    t_enter, active, (passing count, sum time, sum length), (the four trip sums), exited).
+
+    Returns (s before, v before, s after, exited) per view vehicle and, with ``record``, the
+    (B,) exits of this step (else None); None when numba is missing.
     """
     if not HAVE_NUMBA:
         return None
     c = config
     gate = c.edge_sv_gate
     s_all, v_all, a_all = state
+    if record is None:
+        t0 = t1 = mark = t_arrive = t_enter = _NO_FLOAT
+        active, passing, trips, exited = _NO_BOOL, _NO_PASSING, _NO_TRIPS, _NO_INT
+        n_out = None
+    else:
+        t0, t1, mark, t_arrive, t_enter, active, passing, trips, exited = record
+        n_out = np.zeros(exited.size, dtype=np.int64)
     moved, out = _move(
         vehicle, env, lane, sv, d_front, d_back,
         _NO_FLOAT if edge is None else edge, _NO_FLOAT if cloud is None else cloud,
@@ -531,9 +604,16 @@ def move(
         float(c.eta), c.end_rule == "sensible", float(c.entry_accel_mps2),
         0.0 if gate is None else float(gate), gate is not None, float(c.omega),
         float(c.a_max_mps2), float(c.velocity_floor_mps), float(c.v_max_mps), float(c.dt_s),
+        record is not None, t0, t1, mark, t_arrive, t_enter, active, passing, trips, exited,
+        _NO_INT if n_out is None else n_out,
     )
     s_old, v_old, s_new = moved
-    return s_old, v_old, s_new, out
+    return s_old, v_old, s_new, out, n_out
+
+
+_NO_INT = np.zeros(0, dtype=np.int64)
+_NO_PASSING = (_NO_INT, _NO_FLOAT, _NO_FLOAT)
+_NO_TRIPS = (_NO_FLOAT, _NO_FLOAT, _NO_FLOAT, _NO_FLOAT)
 
 
 @njit
@@ -547,14 +627,9 @@ def _record_passing(env, lane, vehicle, s_old, s_new, t_enter_all, mark_s, t0, d
         mark = mark_s[lane[i]]
         so, sn = s_old[i], s_new[i]
         if so < mark and sn >= mark:
-            step = sn - so
-            frac = (mark - so) / (step if step >= 1e-12 else 1e-12)
-            frac = frac if frac > 0.0 else 0.0
-            frac = frac if frac < 1.0 else 1.0
             e = env[i]
-            t_cross = t0[e] + frac * dt
             n_b[e] += 1
-            time_b[e] += t_cross - t_enter_all[vehicle[i]]
+            time_b[e] += t0[e] + _cross_frac(mark, so, sn) * dt - t_enter_all[vehicle[i]]
             length_b[e] += mark
     for e in range(bsz):
         count[e] += n_b[e]
@@ -590,17 +665,8 @@ def _record_exits(out, env, vehicle, lane, s_old, s_new, lane_length, t0, t1, t_
         e = env[i]
         k = vehicle[i]
         length = lane_length[lane[i]]
-        step = s_new[i] - s_old[i]
-        frac = (length - s_old[i]) / (step if step >= 1e-12 else 1e-12)
-        frac = frac if frac > 0.0 else 0.0
-        frac = frac if frac < 1.0 else 1.0
-        t_exit = t0[e] + frac * (t1[e] - t0[e])
-        t_arr, t_ent = t_arrive[k], t_enter[k]
-        trip = t_exit - t_arr
-        part[0, e] += length / trip
-        part[1, e] += length / (t_exit - t_ent)
-        part[2, e] += trip
-        part[3, e] += t_ent - t_arr
+        _add_exit(part, e, length, _exit_time(length, s_old[i], s_new[i], t0[e], t1[e]),
+                  t_arrive[k], t_enter[k])
         n_out[e] += 1
         active[k] = False
     for e in range(bsz):
