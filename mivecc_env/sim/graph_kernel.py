@@ -82,20 +82,29 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         if not np.isfinite(stop):
             stop = lane_length[lane]
         head = node[i] * (k * k) + column[i]
+        flat = node[i] * k + column[i]
+        if mask[flat] != 0.0:
+            raise ValueError("build: two decisions in one (node, column)")
         cells[head, 0] = _channel((s - stop) * inv_scale)
         cells[head, 1] = va[d, 0]
         cells[head, 2] = va[d, 1]
-        flat = node[i] * k + column[i]
         mask[flat] = 1.0
         slot[flat] = view_vehicle[d]
         view_index[flat] = d
-        # rows 1..K-1: merge the valid points behind and ahead, nearest first
+        # rows 1..K-1: merge the valid points behind and ahead, nearest first. Candidates
+        # are kept without a branch (stored, then counted if valid).
         p = own_point[d]
         lo = max(run_start[p], p - (k - 1))
         hi = min(run_end[p], p + k)  # exclusive
         nb = 0
-        for q in range(p - 1, lo - 1, -1):  # valid points behind, nearest (highest) first
-            if _valid(point_pos[q], use_area, c, radius):
+        if use_area:
+            for q in range(p - 1, lo - 1, -1):  # valid points behind, nearest (highest) first
+                x = point_pos[q]
+                b_idx[nb] = q
+                b_dist[nb] = abs(x - s)
+                nb += abs(x - c) <= radius
+        else:
+            for q in range(p - 1, lo - 1, -1):
                 b_idx[nb] = q
                 b_dist[nb] = abs(point_pos[q] - s)
                 nb += 1
@@ -115,8 +124,14 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
                 hi_t -= 1
             t = e + 1
         na = 0
-        for q in range(p + 1, hi):  # valid points ahead, nearest (lowest) first
-            if _valid(point_pos[q], use_area, c, radius):
+        if use_area:
+            for q in range(p + 1, hi):  # valid points ahead, nearest (lowest) first
+                x = point_pos[q]
+                a_idx[na] = q
+                a_dist[na] = abs(x - s)
+                na += abs(x - c) <= radius
+        else:
+            for q in range(p + 1, hi):
                 a_idx[na] = q
                 a_dist[na] = abs(point_pos[q] - s)
                 na += 1
@@ -135,6 +150,18 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
             ia += 1 - take_b
             _write(cells, cell, point_pos[q] - s, point_vehicle[q], va, inv_scale)
             cell += k
+        while cell < head + k * k:  # rows past the references: zero padding
+            cells[cell, 0] = 0.0
+            cells[cell, 1] = 0.0
+            cells[cell, 2] = 0.0
+            cell += k
+    for flat in range(mask.shape[0]):  # columns without a decision: zero padding
+        if mask[flat] == 0.0:
+            head = (flat // k) * (k * k) + flat % k
+            for cell in range(head, head + k * k, k):
+                cells[cell, 0] = 0.0
+                cells[cell, 1] = 0.0
+                cells[cell, 2] = 0.0
 
 
 def build(
@@ -146,11 +173,13 @@ def build(
     """Fill every decision's column of the state graphs (all rows) and its mask entries.
 
     Args:
-        cells: (N*K*K, 3) float32 zeros, cell ``(node, row, column)`` at
-            ``(node * K + row) * K + column``.
+        cells: (N*K*K, 3) float32, cell ``(node, row, column)`` at
+            ``(node * K + row) * K + column``; overwritten whole (zeros where nothing), so it
+            may come uninitialised.
         mask / slot / view_index: (N*K,) flat outputs, overwritten whole (0 / -1 / -1 where
             no decision; they may come uninitialised).
-        decision / node / column: (D,) the selected view vehicles, their node and column.
+        decision / node / column: (D,) the selected view vehicles, their node and column
+            (each ``(node, column)`` at most once: ``ValueError`` otherwise).
         view: the :class:`~mivecc_env.sim.virtual_lane.VirtualLaneView`.
         velocity / accel: (n,) per view vehicle [m/s], [m/s^2].
         v_lo / v_mul / a_mul: velocity channel ``(v - v_lo) * v_mul - 1``, accel ``a * a_mul``.

@@ -189,14 +189,14 @@ def build_graphs(
             default: the kernel when numba is available.
     """
     shape = (batch, n_nodes, k)
-    obs = np.zeros((*shape, k, 3), dtype=np.float32)  # (env, node, row, column, channel)
     v_lo = config.velocity_floor_mps
     inv_scale = 1.0 / position_scale_m
     v_mul = 2.0 / (config.v_max_mps - v_lo)
     a_mul = 1.0 / accel_scale_mps2(config)
     if use_kernel is None:
         use_kernel = graph_kernel.HAVE_NUMBA
-    if use_kernel and decision.size:  # the kernel fills mask, slot and view_index whole
+    if use_kernel and decision.size:  # the kernel writes every output element
+        obs = np.empty((*shape, k, 3), dtype=np.float32)  # (env, node, row, column, channel)
         mask = np.empty(shape, dtype=np.float32)
         slot = np.empty(shape, dtype=np.int64)
         view_index = np.empty(shape, dtype=np.int64)
@@ -205,6 +205,7 @@ def build_graphs(
                            accel, v_lo, v_mul, a_mul, network.lane_cp_s, network.lane_length,
                            area_centre_s, area_radius_m, inv_scale)
         return StateGraphs(obs, mask, slot, view_index)
+    obs = np.zeros((*shape, k, 3), dtype=np.float32)
     mask = np.zeros(shape, dtype=np.float32)
     slot = np.full(shape, -1, dtype=np.int64)
     view_index = np.full(shape, -1, dtype=np.int64)

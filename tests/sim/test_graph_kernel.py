@@ -158,3 +158,45 @@ def test_density_indicator_and_area_centres_match_numpy() -> None:
             assert fast.tobytes() == ref.tobytes()
             checked += int(inside.sum())
     assert checked > 1000
+
+
+def test_kernel_overwrites_every_output_element() -> None:
+    # The kernel path allocates its outputs uninitialised: buffers full of NaN / garbage come
+    # out equal to the numpy path (zero padding written by the kernel), and a repeated
+    # (node, column) is refused.
+    cfg = MiVeCCConfig(rows=2, cols=2, scheme="EEC")
+    sim = Simulator(cfg, batch_size=3, seed=[7, 8, 9], densities=[300.0, 1500.0, 2700.0])
+    for _ in range(150):
+        sim.step()
+    net, view, b, k = sim.network, sim.view, sim.batch_size, cfg.k_edge
+    v = sim.v.ravel()[view.vehicle]
+    a = sim.a.ravel()[view.vehicle]
+    area = net.control_area(view.lane, view.s)
+    dec, node, col = select_edge_decisions(net, view, sim.safety.sv, k, cfg, area)
+    assert 0 < dec.size < b * net.n_intersections * k  # some padded columns
+    centre = graph_kernel.area_centres(view.lane[dec], node % net.n_intersections,
+                                       net.lane_intersections, net.lane_centres_s)
+    ref = build_graphs(net, view, v, a, dec, node, col, net.n_intersections, b, k,
+                       2 * cfg.control_radius_m, cfg, centre, cfg.control_radius_m,
+                       use_kernel=False)
+    shape = ref.mask.shape
+    cells = np.full(ref.obs.shape, np.nan, np.float32)
+    mask = np.full(shape, 7.0, np.float32)
+    slot = np.full(shape, 123, np.int64)
+    view_index = np.full(shape, 456, np.int64)
+    args = (k, dec, node, col, view, v, a, cfg.velocity_floor_mps,
+            2.0 / (cfg.v_max_mps - cfg.velocity_floor_mps), 1.0 / cfg.a_max_mps2,
+            net.lane_cp_s, net.lane_length, centre, cfg.control_radius_m,
+            1.0 / (2 * cfg.control_radius_m))
+    graph_kernel.build(cells.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
+                       view_index.reshape(-1), *args)
+    for got, want in ((cells, ref.obs), (mask, ref.mask), (slot, ref.slot),
+                      (view_index, ref.view_index)):
+        assert got.tobytes() == want.tobytes()
+    def twice(x: np.ndarray) -> np.ndarray:
+        return np.concatenate([x[:1], x])
+
+    with pytest.raises(ValueError, match="two decisions"):
+        graph_kernel.build(cells.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
+                           view_index.reshape(-1), k, twice(dec), twice(node), twice(col),
+                           *args[4:12], twice(centre), *args[13:])
