@@ -1,23 +1,30 @@
 """Compiled (numba) build of the virtual-lane view: the same result as the numpy reference.
 
 :func:`build_view_fast` returns exactly (bit for bit, element for element) what
-:func:`mivecc_env.sim.virtual_lane.build_view_reference` returns, in two compiled passes and one
-sort:
+:func:`mivecc_env.sim.virtual_lane.build_view_reference` returns, in one compiled kernel
+(:func:`_build`) that handles one environment after the other (the reference's sort key
+``(group, position quantised to 0.1 mm, point index)`` with ``group = env * n_lanes + lane``
+is environment-major, so the sorted view is the environments' sorted parts one after the
+other):
 
-1. one pass over the vehicle slots gathers the active vehicles and their projections (the
-   reference's point order: own points in slot order, then projections by vehicle and conflict
-   column) and packs each point's sort key ``(group, position quantised to 0.1 mm, point
-   index)`` into one unique non-negative ``int64``;
-2. ``np.sort`` of those keys (unique keys: any sort gives the order of the reference's stable
-   radix sort, including its ties, which keep the input order);
-3. one pass over the sorted points gives the runs of equal group, every vehicle's front and back
-   point and distances, and the own-lane leader and follower.
+1. the environment's active vehicles and their projections (the reference's point order:
+   own points in slot order, then projections by vehicle and conflict column), each point's
+   key ``(lane, position quantised, local point index)`` packed into one unique ``int64``
+   (the local index keeps the reference's tie order: input order);
+2. a counting sort of the keys by bucket (the key's top bits: the lane and the position's
+   top bits, one to two buckets per point) and an insertion sort, which moves keys only
+   within their bucket (a few each): exactly the order of the reference's stable radix
+   sort, ties included;
+3. the runs (one per lane: the lane's buckets), the sorted point arrays, then every
+   vehicle's front and back point and distances and its own-lane leader and follower from
+   its own point and the own points next to it.
 
-Only integer work, comparisons and the reference's own float additions and subtractions (same
-operands, same order, no fast-math) happen in the kernels, so results are identical. When numba
-is not installed, or when a batch is too large for the packed key (the reference then falls
-back to a float argsort), :func:`build_view_fast` returns None and the caller uses the reference.
-Set ``MIVECC_NO_NUMBA=1`` to force the reference path.
+Everything one environment touches at random (its scratch arrays and its part of the view)
+fits in the first-level cache. Only integer work, comparisons and the reference's own float
+additions and subtractions (same operands, same order, no fast-math) happen in the kernel, so
+results are identical. When numba is not installed, or when a batch is too large for the
+packed key (the reference then falls back to a float argsort), :func:`build_view_fast` returns
+None and the caller uses the reference. Set ``MIVECC_NO_NUMBA=1`` to force the reference path.
 """
 
 from __future__ import annotations
@@ -33,140 +40,184 @@ if TYPE_CHECKING:
     from mivecc_env.sim.virtual_lane import VirtualLaneView
 
 
-@njit
-def _points(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, window_m,
-            clear_m, seg, off, n_on, candidate, n_lanes, q_scale, qbits, ibits, vehicle, env,
-            v_lane, v_s, group, pos, src, keys):  # pragma: no cover
-    """Pass 1: vehicles, points and packed sort keys (see the module docstring).
+#: Rows of the view's blocks (see :func:`_allocate`) and of the scratch arrays (see
+#: :func:`_scratch`); numba compiles them as constants.
+_VEHICLE, _ENV, _LANE, _OWN_POINT, _FRONT, _BACK, _LEADER, _FOLLOWER = range(8)  # vi
+_S, _D_FRONT, _D_BACK = range(3)  # vf
+_GROUP, _POINT_VEHICLE, _RUN_START, _RUN_END = range(4)  # pi
+_KEY, _SORTED, _SRC, _OWN = range(4)  # li
+_POS, _SORTED_POS = range(2)  # lf
 
-    Writes into the given buffers (vehicle arrays at least as long as the slots, point arrays
-    at least the slots times ``1 + n_col``) and returns (vehicles, points, keys in range).
+
+@njit
+def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, window_m, clear_m,
+           seg, off, n_on, candidate, n_lanes, q_scale, qbits, lbits, qdrop, li, lf, counts, vi,
+           vf, pi, pf, pb):  # pragma: no cover
+    """The whole view, one environment after the other (see the module docstring).
+
+    ``li``/``lf``/``counts``: the scratch arrays of :func:`_scratch` (rows: keys, sorted keys,
+    vehicles, own points / positions, sorted positions); ``vi``, ``vf``, ``pi``, ``pf``,
+    ``pb``: the view's blocks of :func:`_allocate` (rows as in ``_FIELDS``), with room for
+    every vehicle and point. Writes them and returns (vehicles, points, every key in range).
     """
     bsz, cap = active.shape
     n_col = 2 if candidate else lane_cp_s.shape[1]
-    n = 0
+    qmax = (np.int64(1) << qbits) - 1
+    shift_l = qbits + lbits
+    lmask = (np.int64(1) << lbits) - 1
+    bad = False
+    n = 0  # vehicles so far
+    out = 0  # points so far
     for b in range(bsz):
+        # 1. vehicles and points of environment b, their keys
+        v0 = n
+        m = 0
         for k in range(cap):
             if active[b, k]:
-                vehicle[n] = b * cap + k
-                env[n] = b
-                v_lane[n] = lane[b, k]
-                v_s[n] = s[b, k]
+                x = s[b, k]
+                ln = lane[b, k]
+                vi[_VEHICLE, n] = b * cap + k
+                vi[_ENV, n] = b
+                vi[_LANE, n] = ln
+                vf[_S, n] = x
+                lf[_POS, m] = x
+                li[_SRC, m] = m
+                q = np.int64((x + window_m) * q_scale)
+                bad |= (q > qmax) | (q < 0)
+                li[_KEY, m] = (ln << shift_l) | (min(max(q, 0), qmax) << lbits) | m
                 n += 1
-    for i in range(n):
-        group[i] = env[i] * n_lanes + v_lane[i]
-        pos[i] = v_s[i]
-        src[i] = i
-    p = n
-    for i in range(n):
-        ln = v_lane[i]
-        first = 0
-        if candidate:
-            kc = np.int64(np.ceil((v_s[i] - clear_m - off) / seg)) - 1
-            kc = min(max(kc, 0), n_on - 1)
-            first = 2 * kc
-        for j in range(n_col):
-            c = first + j
-            delta = v_s[i] - lane_cp_s[ln, c]
-            if delta >= -window_m and delta <= clear_m:
-                group[p] = env[i] * n_lanes + lane_cp_other_lane[ln, c]
-                pos[p] = lane_cp_other_s[ln, c] + delta
-                src[p] = i
-                p += 1
-    size = p
-    qmax = (np.int64(1) << qbits) - 1
-    shift_g = qbits + ibits
-    ok = True
-    for j in range(size):
-        q = np.int64((pos[j] + window_m) * q_scale)
-        if q > qmax or q < 0:
-            ok = False
-        keys[j] = (group[j] << shift_g) | (q << ibits) | j
-    return n, size, ok
-
-
-@njit
-def _neighbours(keys, pos, src, n, v_s, imask, shift_g, g_s, p_s, s_s, own, run_start, run_end,
-                own_point, front, back, d_front, d_back, leader, follower):  # pragma: no cover
-    """Pass 2: sorted point arrays, runs, front/back points and own-lane neighbours.
-
-    Writes the first ``keys.size`` (points) or ``n`` (vehicles) entries of the given buffers.
-    """
-    size = keys.size
-    start = 0
-    prev_own = -1  # last own point of the current run
-    for r in range(size):
-        j = keys[r] & imask
-        g = keys[r] >> shift_g  # the group: the key's top bits
-        g_s[r] = g
-        p_s[r] = pos[j]
-        s_s[r] = src[j]
-        if r > 0 and g != g_s[r - 1]:
-            for t in range(start, r):
-                run_end[t] = r
-            start = r
-            prev_own = -1
-        run_start[r] = start
-        if j < n:
-            own[r] = True
-            own_point[j] = r
-            leader[j] = -1
-            if prev_own >= 0:
-                behind = s_s[prev_own]
-                leader[behind] = j
-                follower[j] = behind
-            else:
-                follower[j] = -1
-            prev_own = r
-        else:
-            own[r] = False
-    for t in range(start, size):
-        run_end[t] = size
-    for r in range(size):
-        if own[r]:
-            i = s_s[r]
-            if r + 1 < run_end[r]:
-                front[i] = r + 1
-                d_front[i] = p_s[r + 1] - v_s[i]
-            else:
-                front[i] = -1
-                d_front[i] = np.inf
-            if r - 1 >= run_start[r]:
-                back[i] = r - 1
-                d_back[i] = v_s[i] - p_s[r - 1]
-            else:
-                back[i] = -1
-                d_back[i] = np.inf
-    return 0
+                m += 1
+        nv = m
+        for iv in range(nv):
+            ln = vi[_LANE, v0 + iv]
+            x = vf[_S, v0 + iv]
+            c0 = 0
+            if candidate:  # only the two conflict points of the one intersection in range
+                kc = np.int64(np.ceil((x - clear_m - off) / seg)) - 1
+                c0 = 2 * min(max(kc, 0), n_on - 1)
+            for c in range(c0, c0 + n_col):
+                delta = x - lane_cp_s[ln, c]
+                if delta >= -window_m and delta <= clear_m:
+                    y = lane_cp_other_s[ln, c] + delta
+                    lf[_POS, m] = y
+                    li[_SRC, m] = iv
+                    q = np.int64((y + window_m) * q_scale)
+                    bad |= (q > qmax) | (q < 0)
+                    li[_KEY, m] = ((lane_cp_other_lane[ln, c] << shift_l)
+                                | (min(max(q, 0), qmax) << lbits) | m)
+                    m += 1
+        # 2. sort: counting sort by bucket (one to two per point), then insertion sort within
+        # the buckets
+        qd = qdrop
+        while qd < qbits and n_lanes << (qbits - qd) > max(2 * m, n_lanes):
+            qd += 1
+        bshift = lbits + qd
+        nb = n_lanes << (qbits - qd)
+        counts[:nb] = 0
+        for t in range(m):
+            counts[li[_KEY, t] >> bshift] += 1
+        total = 0
+        for t in range(nb):
+            c = counts[t]
+            counts[t] = total
+            total += c
+        for t in range(m):
+            key = li[_KEY, t]
+            d = counts[key >> bshift]
+            counts[key >> bshift] = d + 1
+            li[_SORTED, d] = key
+        for t in range(1, m):
+            key = li[_SORTED, t]
+            if li[_SORTED, t - 1] > key:
+                u = t
+                while u > 0 and li[_SORTED, u - 1] > key:
+                    li[_SORTED, u] = li[_SORTED, u - 1]
+                    u -= 1
+                li[_SORTED, u] = key
+        # 3. the environment's part of the view: runs (one per lane: its buckets), points,
+        # then the vehicles from their own points (in sorted order)
+        bb = qbits - qd  # bucket bits per lane
+        g0 = b * n_lanes
+        a = 0
+        for ln in range(n_lanes):
+            e = counts[((ln + 1) << bb) - 1]  # end of the lane's last bucket
+            for r in range(out + a, out + e):
+                pi[_GROUP, r] = g0 + ln
+                pi[_RUN_START, r] = out + a
+                pi[_RUN_END, r] = out + e
+            a = e
+        k = 0
+        for r in range(m):
+            jl = li[_SORTED, r] & lmask
+            y = lf[_POS, jl]
+            lf[_SORTED_POS, r] = y
+            pf[out + r] = y
+            pi[_POINT_VEHICLE, out + r] = v0 + li[_SRC, jl]
+            is_own = jl < nv
+            pb[out + r] = is_own
+            li[_OWN, k] = r  # kept where the point is own (no data-dependent branch)
+            k += np.int64(is_own)
+        for k in range(nv):
+            r = li[_OWN, k]
+            key = li[_SORTED, r]
+            i = v0 + (key & lmask)
+            ln = key >> shift_l
+            e = counts[((ln + 1) << bb) - 1]  # the lane's run: [a, e)
+            a = counts[(ln << bb) - 1] if ln > 0 else 0
+            x = lf[_SORTED_POS, r]
+            vi[_OWN_POINT, i] = out + r
+            yb = lf[_SORTED_POS, max(r - 1, 0)]
+            vi[_BACK, i] = out + r - 1 if r > a else -1
+            vf[_D_BACK, i] = x - yb if r > a else np.inf
+            yf = lf[_SORTED_POS, min(r + 1, m - 1)]
+            vi[_FRONT, i] = out + r + 1 if r + 1 < e else -1
+            vf[_D_FRONT, i] = yf - x if r + 1 < e else np.inf
+            rp = li[_OWN, max(k - 1, 0)]  # the previous own point: on this lane if r > it >= a
+            vi[_FOLLOWER, i] = v0 + (li[_SORTED, rp] & lmask) if k > 0 and rp >= a else -1
+            rn = li[_OWN, min(k + 1, nv - 1)]
+            vi[_LEADER, i] = v0 + (li[_SORTED, rn] & lmask) if k + 1 < nv and rn < e else -1
+        out += m
+    return n, out, not bad
 
 
 def _bits(x: int) -> int:
     return max(1, int(x).bit_length())
 
 
-#: (name, dtype, per-vehicle (False) or per-point (True)) of every buffer of one view.
-_BUFFERS = (
-    ("vehicle", np.int64, False), ("env", np.int64, False), ("lane", np.int64, False),
-    ("s", np.float64, False), ("group", np.int64, True), ("pos", np.float64, True),
-    ("src", np.int64, True), ("keys", np.int64, True), ("point_group", np.int64, True),
-    ("point_pos", np.float64, True), ("point_vehicle", np.int64, True),
-    ("point_own", np.bool_, True), ("point_run_start", np.int64, True),
-    ("point_run_end", np.int64, True), ("own_point", np.int64, False),
-    ("front_point", np.int64, False), ("back_point", np.int64, False),
-    ("d_front", np.float64, False), ("d_back", np.float64, False),
-    ("leader", np.int64, False), ("follower", np.int64, False),
+#: The view's arrays are rows of five blocks (fewer arrays for the kernel to address):
+#: (block, row) of every field of :class:`~mivecc_env.sim.virtual_lane.VirtualLaneView`.
+_FIELDS = (
+    ("vehicle", "vi", _VEHICLE), ("env", "vi", _ENV), ("lane", "vi", _LANE), ("s", "vf", _S),
+    ("point_group", "pi", _GROUP), ("point_pos", "pf", None),
+    ("point_vehicle", "pi", _POINT_VEHICLE), ("point_own", "pb", None),
+    ("point_run_start", "pi", _RUN_START), ("point_run_end", "pi", _RUN_END),
+    ("own_point", "vi", _OWN_POINT), ("front_point", "vi", _FRONT), ("back_point", "vi", _BACK),
+    ("d_front", "vf", _D_FRONT), ("d_back", "vf", _D_BACK), ("leader", "vi", _LEADER),
+    ("follower", "vi", _FOLLOWER),
 )
+_PER_POINT = ("pi", "pf", "pb")
 
 
 def _allocate(n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
-    return {name: np.empty(n_points if per_point else n_vehicles, dtype)
-            for name, dtype, per_point in _BUFFERS}
+    """The blocks of one view: vehicle int64 rows and float64 rows (room for ``n_vehicles``),
+    point int64 rows, positions and own flags (room for ``n_points``)."""
+    return {"vi": np.empty((8, n_vehicles), np.int64), "vf": np.empty((3, n_vehicles)),
+            "pi": np.empty((4, n_points), np.int64), "pf": np.empty(n_points),
+            "pb": np.empty(n_points, np.bool_)}
+
+
+def _scratch(n_points: int, n_buckets: int) -> tuple[np.ndarray, ...]:
+    """The per-environment scratch arrays of :func:`_build` (room for ``n_points``): keys,
+    sorted keys, vehicles, own points (int64 rows), positions, sorted positions (float64
+    rows), and the bucket counts."""
+    return (np.empty((4, n_points), np.int64), np.empty((2, n_points)),
+            np.empty(n_buckets, np.int64))
 
 
 class ViewWorkspace:
     """Reusable output buffers of :func:`build_view_fast`, owned by one caller.
 
-    The compiled passes write into these buffers instead of returning fresh arrays (each
+    The compiled build writes into these buffers instead of returning fresh arrays (each
     array a numba kernel returns costs a Python-side boxing call). The view of a call is
     made of slices of one of two buffer sets used in turn, so the view returned by the
     previous call stays intact while the next one is built; the view two builds back is
@@ -181,35 +232,57 @@ class ViewWorkspace:
         self._turn = 0
         #: arguments and result of the last ``_layout`` (the key layout of the batch shape)
         self.layout_key: tuple | None = None
-        self.layout: tuple[int, int, int] | None = None
+        self.layout: tuple[int, int, int, int] | None = None
+        #: per-environment scratch arrays of the build (see :func:`_scratch`)
+        self.scratch: tuple[np.ndarray, ...] = _scratch(0, 0)
 
     def take(self, n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
         """The next buffer set, with room for ``n_vehicles`` vehicles and ``n_points``
         points."""
         self._turn ^= 1
         bufs = self._sets[self._turn]
-        if not bufs or bufs["vehicle"].size < n_vehicles or bufs["keys"].size < n_points:
+        if not bufs or bufs["vi"].shape[1] < n_vehicles or bufs["pf"].size < n_points:
             bufs = _allocate(n_vehicles, n_points)
             self._sets[self._turn] = bufs
         return bufs
+
+    def take_scratch(self, n_points: int, n_buckets: int) -> tuple[np.ndarray, ...]:
+        """The scratch arrays, with room for ``n_points`` points of one environment and
+        exactly ``n_buckets`` bucket counts."""
+        if self.scratch[1].shape[1] < n_points or self.scratch[2].size != n_buckets:
+            self.scratch = _scratch(n_points, n_buckets)
+        return self.scratch
 
 
 def _layout(
     network: GridNetwork, window_m: float, clear_m: float, bsz: int, cap: int, q_scale: float,
     candidate: bool,
-) -> tuple[int, int, int] | None:
-    """(conflict columns tested per vehicle, position bits, point-index bits) of the packed
-    key, or None where the batch is too large for it."""
+) -> tuple[int, int, int, int] | None:
+    """(conflict columns tested per vehicle, position bits, local point-index bits, position
+    bits dropped in the sort's bucket index) of the packed key, or None where the reference
+    would not use its radix sort (its float argsort may order ties otherwise).
+
+    A bucket of the sort is the key's top bits: the lane and the position's top bits, about
+    one to two buckets per point of the environment (at least one per lane; :func:`_build`
+    drops more position bits for an environment with fewer points); ``qdrop`` is the least
+    number of position bits dropped (the most buckets: twice the points one environment can
+    hold).
+    """
     n_groups = bsz * network.n_lanes
     if n_groups > 1 << 16:  # the reference sorts such batches with a float argsort
         return None
     n_col = 2 if candidate else network.lane_cp_s.shape[1]
     reach = float(network.lane_length.max()) + clear_m + window_m
     qbits = _bits(int(reach * q_scale * 1.001) + 2)
-    ibits = _bits(bsz * cap * (1 + n_col))
-    if qbits > 32 or _bits(n_groups - 1) + qbits + ibits > 63:
+    per_env = cap * (1 + n_col)
+    lbits = _bits(per_env)
+    if qbits > 32 or _bits(network.n_lanes - 1) + qbits + lbits > 62:
         return None
-    return n_col, qbits, ibits
+    target = max(network.n_lanes, 2 * per_env)
+    qdrop = qbits
+    while qdrop > 0 and network.n_lanes << (qbits - qdrop + 1) <= target:
+        qdrop -= 1
+    return n_col, qbits, lbits, qdrop
 
 
 def build_view_fast(
@@ -237,31 +310,27 @@ def build_view_fast(
             workspace.layout_key, workspace.layout = key, layout
     if layout is None:
         return None
-    n_col, qbits, ibits = layout
+    n_col, qbits, lbits, qdrop = layout
     n_lanes = network.n_lanes
     n_slots = bsz * cap
+    n_buckets = n_lanes << (qbits - qdrop)
     if workspace is None:
         bufs = _allocate(n_slots, n_slots * (1 + n_col))
+        scratch = _scratch(cap * (1 + n_col), n_buckets)
     else:
         bufs = workspace.take(n_slots, n_slots * (1 + n_col))
-    n, size, ok = _points(
+        scratch = workspace.take_scratch(cap * (1 + n_col), n_buckets)
+    n, size, ok = _build(
         active, lane, s, network.lane_cp_s, network.lane_cp_other_lane,
         network.lane_cp_other_s, float(window_m), float(clear_m),
         float(network.segment_length_m), float(network.lane_offset_m),
         int(network.lane_centres_s.shape[1]), bool(candidate), n_lanes, float(q_scale),
-        qbits, ibits, bufs["vehicle"], bufs["env"], bufs["lane"], bufs["s"], bufs["group"],
-        bufs["pos"], bufs["src"], bufs["keys"],
+        qbits, lbits, qdrop, *scratch, bufs["vi"], bufs["vf"], bufs["pi"], bufs["pf"],
+        bufs["pb"],
     )
     if not ok:
         return None
-    keys = bufs["keys"][:size]
-    keys.sort()
-    imask = (1 << ibits) - 1
-    out = {name: bufs[name][:size if per_point else n] for name, _dtype, per_point in _BUFFERS
-           if name not in ("group", "pos", "src", "keys")}
-    _neighbours(keys, bufs["pos"], bufs["src"], n, out["s"], imask, qbits + ibits,
-                out["point_group"], out["point_pos"], out["point_vehicle"], out["point_own"],
-                out["point_run_start"], out["point_run_end"], out["own_point"],
-                out["front_point"], out["back_point"], out["d_front"], out["d_back"],
-                out["leader"], out["follower"])
-    return VirtualLaneView(**out)
+    return VirtualLaneView(**{
+        name: (bufs[block] if row is None else bufs[block][row])[
+            :size if block in _PER_POINT else n]
+        for name, block, row in _FIELDS})
