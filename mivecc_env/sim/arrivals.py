@@ -50,6 +50,9 @@ class ArrivalProcess:
         self.arrived = np.zeros(shape, dtype=np.int64)  # arrivals with time <= now
         self.entered = np.zeros(shape, dtype=np.int64)  # vehicles that left the queue
         self._last = np.zeros(shape)  # time of the last drawn arrival [s]
+        # time of arrival number ``arrived`` (the next one) of each lane [s]: a compact copy of
+        # the ring buffer's heads, so that advance reads the buffer only where one arrives
+        self._next = np.zeros(shape)
         # (B, 1) and (1, n_lanes) indices: times[b, lane, i] of one i per (b, lane)
         self._env_idx = np.arange(batch)[:, None]
         self._lane_idx = np.arange(n_lanes)[None, :]
@@ -89,6 +92,7 @@ class ArrivalProcess:
         for b in envs.tolist():
             for lane in range(self.n_lanes):
                 self._draw(b, lane)
+        self._next[envs] = self._buffered(self.arrived)[envs]
 
     @property
     def queued(self) -> NDArray[np.int64]:
@@ -137,7 +141,7 @@ class ArrivalProcess:
                      else np.ascontiguousarray(np.broadcast_to(now, (self.batch,))))
             need = np.empty((self.batch, self.n_lanes), dtype=bool)
             while step_kernels.advance_arrivals(
-                self.times, self.generated, self.arrived, now_b, need
+                self.times, self.generated, self.arrived, self._next, now_b, need
             ):
                 for b, lane in zip(*np.nonzero(need), strict=True):
                     self._draw(int(b), int(lane))
@@ -146,6 +150,7 @@ class ArrivalProcess:
         while True:
             due = self._buffered(self.arrived) <= now
             if not due.any():
+                self._next = self._buffered(self.arrived)
                 return
             self.arrived += due
             for b, lane in zip(*np.nonzero(self.generated - self.arrived < 2), strict=True):

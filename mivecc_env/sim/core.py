@@ -611,7 +611,7 @@ class Simulator:
         if plan is not None:  # compiled: same slots, same order as below
             go, n_new, n_free = plan
             if (n_new > n_free).any():
-                self._grow(int(n_new.max() + (self.capacity - n_free).max()))
+                self._grow(int(n_new.max() + self.active.sum(axis=1).max()))
             step_kernels.place_entries(
                 go, (self.arrivals.times, self.arrivals.entered), now_s,
                 (self.active, self.lane, self.s, self.v, self.a, self.t_arrive, self.t_enter,

@@ -334,14 +334,17 @@ def _entry_plan(active, vehicle, env, lane, s_new, queued, clearance):  # pragma
         if s_new[i] < clearance and active[vehicle[i]]:
             blocked[env[i], lane[i]] = True
     for b in range(bsz):
-        used = 0
-        for k in range(b * cap, (b + 1) * cap):
-            used += active[k]
-        n_free[b] = cap - used
         for ln in range(n_lanes):
             if queued[b, ln] > 0 and not blocked[b, ln]:
                 go[b, ln] = True
                 n_new[b] += 1
+        # free slots, counted from the end (where they are) until there are enough
+        free = 0
+        k = (b + 1) * cap - 1
+        while free < n_new[b] and k >= b * cap:
+            free += not active[k]
+            k -= 1
+        n_free[b] = free
     return go, counts
 
 
@@ -379,7 +382,8 @@ def entry_plan(
     clearance_m: float,
 ) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64]] | None:
     """(go, n_new, n_free): lanes whose queue head enters (queued and no vehicle of the lane
-    closer than ``clearance_m`` to its entry), entries and free slots per environment.
+    closer than ``clearance_m`` to its entry), entries per environment, and its free slots
+    counted up to n_new (``n_free < n_new``: not enough room, ``n_free`` is then exact).
 
     The vehicles are read from the view of the step (``vehicle``, ``env``, ``lane``; ``s_new``
     their positions after the move): every active vehicle is in it (a vehicle outside the
@@ -407,35 +411,43 @@ def place_entries(
 
 
 @njit
-def _advance_arrivals(times, generated, arrived, now, need):  # pragma: no cover
+def _advance_arrivals(times, generated, arrived, next_time, now, need):  # pragma: no cover
     """Count every buffered arrival with time <= now into ``arrived``; stop a lane where its
-    buffer runs low (``need`` True: draw more, then call again). Returns the lanes in need."""
+    buffer runs low (``need`` True: draw more, then call again). Returns the lanes in need.
+    ``next_time``: each lane's ``times`` entry number ``arrived`` (kept up to date here), so
+    that a lane without an arrival does not touch its buffer."""
     bsz, n_lanes, cap = times.shape
     n_need = 0
     for b in range(bsz):
         t = now[b]
         for ln in range(n_lanes):
             need[b, ln] = False
+            head = next_time[b, ln]
+            if not head <= t:
+                continue
             arr = arrived[b, ln]
             gen = generated[b, ln]
-            while gen - arr >= 2 and times[b, ln, arr % cap] <= t:
+            while gen - arr >= 2 and head <= t:
                 arr += 1
+                head = times[b, ln, arr % cap]  # arr < gen: drawn
                 if gen - arr < 2:
                     need[b, ln] = True
                     n_need += 1
             arrived[b, ln] = arr
+            next_time[b, ln] = head
     return n_need
 
 
 def advance_arrivals(
     times: NDArray[np.float64], generated: NDArray[np.int64], arrived: NDArray[np.int64],
-    now: NDArray[np.float64], need: NDArray[np.bool_],
+    next_time: NDArray[np.float64], now: NDArray[np.float64], need: NDArray[np.bool_],
 ) -> int | None:
-    """``ArrivalProcess.advance``'s counting loop (``arrived`` updated in place); the number of
-    lanes whose buffer must be refilled before calling again (``need`` marks them)."""
+    """``ArrivalProcess.advance``'s counting loop (``arrived`` and ``next_time``, the time of
+    each lane's next arrival, updated in place); the number of lanes whose buffer must be
+    refilled before calling again (``need`` marks them)."""
     if not HAVE_NUMBA:
         return None
-    return int(_advance_arrivals(times, generated, arrived, now, need))
+    return int(_advance_arrivals(times, generated, arrived, next_time, now, need))
 
 
 @njit

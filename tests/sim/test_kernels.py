@@ -79,6 +79,29 @@ def test_trajectory_identical_with_and_without_kernels(
     assert fast.in_network.sum() > 0
 
 
+def test_capacity_growth_identical_with_and_without_kernels(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """From 8 slots the capacity grows several times (the compiled entry plan counts free
+    slots only up to what enters): the same sizes at the same steps, the same states."""
+    cfg = MiVeCCConfig(rows=3, cols=3, density_vplh=2100, scheme="E")
+    fast = Simulator(cfg, batch_size=3, seed=4, capacity=8)
+    with monkeypatch.context() as m:
+        _no_kernels(m)
+        ref = Simulator(cfg, batch_size=3, seed=4, capacity=8)
+    sizes = set()
+    for step in range(400):
+        fast.step()
+        with monkeypatch.context() as m:
+            _no_kernels(m)
+            ref.step()
+        sizes.add(fast.capacity)
+        for name in STATE:
+            np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name),
+                                          err_msg=f"{name} at step {step}")
+    assert len(sizes) >= 3
+
+
 def _crowded(cfg: MiVeCCConfig, batch: int, per_env: int, seed: int):
     """Random vehicles on random lanes (many close pairs, exact ties of positions)."""
     sim = Simulator(cfg, batch_size=batch, seed=seed, capacity=per_env)
