@@ -27,6 +27,10 @@ from mivecc_env.sim._numba import HAVE_NUMBA, njit
 
 __all__ = ["HAVE_NUMBA", "build", "select_capped_desc", "select_nodes", "select_per_group"]
 
+#: Index cast for the hot loops: numba wraps a negative signed index around (a sign test per
+#: access); an unsigned index skips it. Only for indices known to be >= 0.
+U = np.uint64
+
 
 @njit
 def _valid(pos, use_area, centre, radius):  # pragma: no cover - compiled
@@ -58,8 +62,8 @@ def _write(cells, cell, rel, vehicle, va, inv_scale):  # pragma: no cover - comp
 @njit
 def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, view_lane,
            view_vehicle, own_point, run_start, run_end, point_pos, point_vehicle, velocity,
-           accel, v_lo, v_mul, a_mul, lane_cp_s, lane_length, use_area, centre, radius,
-           inv_scale):  # pragma: no cover - compiled
+           accel, v_lo, v_mul, a_mul, lane_cp_s, lane_length, use_area, centre, n_area,
+           lane_intersections, lane_centres_s, radius, inv_scale):  # pragma: no cover - compiled
     for j in range(mask.shape[0]):  # every column empty, then the decisions' columns
         mask[j] = 0.0
         slot[j] = -1
@@ -73,7 +77,18 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         d = decision[i]
         s = view_s[d]
         lane = view_lane[d]
-        c = centre[i] if use_area else 0.0
+        c = 0.0
+        if use_area:
+            if n_area > 0:  # the centre of area node % n_area on the lane (_area_centres)
+                area = node[i] % n_area
+                which = 0
+                for j in range(lane_intersections.shape[1]):
+                    if lane_intersections[lane, j] == area:
+                        which = j
+                        break
+                c = lane_centres_s[lane, which]
+            else:
+                c = centre[i]
         # row 0: distance to the next conflict point ahead (the lane end past the last one)
         stop = np.inf
         for cp in lane_cp_s[lane]:
@@ -99,14 +114,14 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         nb = 0
         if use_area:
             for q in range(p - 1, lo - 1, -1):  # valid points behind, nearest (highest) first
-                x = point_pos[q]
-                b_idx[nb] = q
-                b_dist[nb] = abs(x - s)
+                x = point_pos[U(q)]
+                b_idx[U(nb)] = q
+                b_dist[U(nb)] = abs(x - s)
                 nb += abs(x - c) <= radius
         else:
             for q in range(p - 1, lo - 1, -1):
-                b_idx[nb] = q
-                b_dist[nb] = abs(point_pos[q] - s)
+                b_idx[U(nb)] = q
+                b_dist[U(nb)] = abs(point_pos[U(q)] - s)
                 nb += 1
         # a run of equal distances behind goes out in increasing point index
         t = 0
@@ -126,14 +141,14 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         na = 0
         if use_area:
             for q in range(p + 1, hi):  # valid points ahead, nearest (lowest) first
-                x = point_pos[q]
-                a_idx[na] = q
-                a_dist[na] = abs(x - s)
+                x = point_pos[U(q)]
+                a_idx[U(na)] = q
+                a_dist[U(na)] = abs(x - s)
                 na += abs(x - c) <= radius
         else:
             for q in range(p + 1, hi):
-                a_idx[na] = q
-                a_dist[na] = abs(point_pos[q] - s)
+                a_idx[U(na)] = q
+                a_dist[U(na)] = abs(point_pos[U(q)] - s)
                 na += 1
         b_dist[nb] = np.inf  # sentinels: an exhausted side never wins
         b_idx[nb] = p
@@ -144,11 +159,16 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         ia = 0
         cell = head + k
         for _ in range(min(k - 1, nb + na)):
-            take_b = np.int64(b_dist[ib] <= a_dist[ia])
-            q = a_idx[ia] + take_b * (b_idx[ib] - a_idx[ia])
+            take_b = np.int64(b_dist[U(ib)] <= a_dist[U(ia)])
+            qa = a_idx[U(ia)]
+            q = qa + take_b * (b_idx[U(ib)] - qa)
             ib += take_b
             ia += 1 - take_b
-            _write(cells, cell, point_pos[q] - s, point_vehicle[q], va, inv_scale)
+            veh = point_vehicle[U(q)]
+            uc = U(cell)
+            cells[uc, 0] = _channel((point_pos[U(q)] - s) * inv_scale)
+            cells[uc, 1] = va[U(veh), 0]
+            cells[uc, 2] = va[U(veh), 1]
             cell += k
         while cell < head + k * k:  # rows past the references: zero padding
             cells[cell, 0] = 0.0
@@ -168,7 +188,8 @@ def build(
     cells: np.ndarray, mask: np.ndarray, slot: np.ndarray, view_index: np.ndarray, k: int,
     decision: np.ndarray, node: np.ndarray, column: np.ndarray, view, velocity: np.ndarray,
     accel: np.ndarray, v_lo: float, v_mul: float, a_mul: float, lane_cp_s: np.ndarray,
-    lane_length: np.ndarray, centre: np.ndarray | None, radius: float, inv_scale: float,
+    lane_length: np.ndarray, centre: np.ndarray | tuple | None, radius: float,
+    inv_scale: float,
 ) -> None:
     """Fill every decision's column of the state graphs (all rows) and its mask entries.
 
@@ -185,15 +206,30 @@ def build(
         v_lo / v_mul / a_mul: velocity channel ``(v - v_lo) * v_mul - 1``, accel ``a * a_mul``.
         lane_cp_s / lane_length: the network's conflict points per lane (inf padding) and
             lane lengths [m].
-        centre / radius: area filter of the references (``None``: no filter) [m].
+        centre / radius: area filter of the references [m]: ``None`` (no filter), (D,) the
+            centre of each decision's area on its lane, or ``(n_area, lane_intersections,
+            lane_centres_s)``: the area is intersection ``node % n_area``, its centre looked
+            up on the decision's lane in the kernel (as :func:`area_centres` does).
         inv_scale: 1 / position scale [1/m].
     """
     use_area = centre is not None
-    c = centre if use_area else np.zeros(0)
+    n_area, inter, centres = 0, _NO_INT2, _NO_FLOAT2
+    c = _NO_FLOAT
+    if isinstance(centre, tuple):
+        n_area, inter, centres = centre
+        n_area = int(n_area)
+    elif use_area:
+        c = centre
     _build(cells, mask, slot, view_index, k, decision, node, column, view.s, view.lane,
            view.vehicle, view.own_point, view.point_run_start, view.point_run_end,
            view.point_pos, view.point_vehicle, velocity, accel, float(v_lo), float(v_mul),
-           float(a_mul), lane_cp_s, lane_length, use_area, c, float(radius), float(inv_scale))
+           float(a_mul), lane_cp_s, lane_length, use_area, c, n_area, inter, centres,
+           float(radius), float(inv_scale))
+
+
+_NO_FLOAT = np.zeros(0)
+_NO_FLOAT2 = np.zeros((0, 0))
+_NO_INT2 = np.zeros((0, 0), dtype=np.int64)
 
 
 @njit

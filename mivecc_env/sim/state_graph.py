@@ -40,6 +40,10 @@ from mivecc_env.sim.virtual_lane import VirtualLaneView
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+#: ``build_graphs(area_centre_s=_CENTRE_OF_NODE)``: the centres of the decisions' areas
+#: (intersection ``node % n_nodes``) are looked up on their lanes (in the kernel).
+_CENTRE_OF_NODE = np.zeros(0)
+
 
 @dataclass(frozen=True)
 class StateGraphs:
@@ -184,6 +188,8 @@ def build_graphs(
             ``env * n_nodes + node_in_env``).
         area_centre_s: (len(decision),) centre of each decision's area on its lane [m];
             references outside ``area_radius_m`` of it are ignored (edge nodes).
+            ``_CENTRE_OF_NODE``: the area is intersection ``node % n_nodes``, its centre
+            looked up on the decision's lane (as :func:`edge_graphs` needs).
         use_kernel: fill the graphs with the compiled kernel
             (:func:`mivecc_env.sim.graph_kernel.build`, bit-identical) or the numpy path;
             default: the kernel when numba is available.
@@ -200,10 +206,13 @@ def build_graphs(
         mask = np.empty(shape, dtype=np.float32)
         slot = np.empty(shape, dtype=np.int64)
         view_index = np.empty(shape, dtype=np.int64)
+        centre = area_centre_s
+        if centre is _CENTRE_OF_NODE:
+            centre = (n_nodes, network.lane_intersections, network.lane_centres_s)
         graph_kernel.build(obs.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
                            view_index.reshape(-1), k, decision, node, column, view, velocity,
                            accel, v_lo, v_mul, a_mul, network.lane_cp_s, network.lane_length,
-                           area_centre_s, area_radius_m, inv_scale)
+                           centre, area_radius_m, inv_scale)
         return StateGraphs(obs, mask, slot, view_index)
     obs = np.zeros((*shape, k, 3), dtype=np.float32)
     mask = np.zeros(shape, dtype=np.float32)
@@ -215,6 +224,10 @@ def build_graphs(
 
     if decision.size == 0:
         return finish()
+    if area_centre_s is _CENTRE_OF_NODE:
+        lane = view.lane[decision]
+        which = np.argmax(network.lane_intersections[lane] == (node % n_nodes)[:, None], axis=1)
+        area_centre_s = network.lane_centres_s[lane, which]
 
     s_d = view.s[decision]
     to_stop = s_d - network.next_stop_s(view.lane[decision], s_d)
@@ -278,6 +291,12 @@ def edge_graphs(
     :func:`select_edge_decisions`)."""
     k = config.k_edge
     decision, node, column = select_edge_decisions(network, view, sv, k, config, area)
+    if graph_kernel.HAVE_NUMBA and decision.size:  # the kernel looks the centres up itself
+        return build_graphs(
+            network, view, velocity, accel, decision, node, column, network.n_intersections,
+            batch, k, 2.0 * config.control_radius_m, config, _CENTRE_OF_NODE,
+            config.control_radius_m,
+        )
     area = node % network.n_intersections
     lane = view.lane[decision]
     if graph_kernel.HAVE_NUMBA:

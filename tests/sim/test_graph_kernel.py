@@ -200,3 +200,29 @@ def test_kernel_overwrites_every_output_element() -> None:
         graph_kernel.build(cells.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
                            view_index.reshape(-1), k, twice(dec), twice(node), twice(col),
                            *args[4:12], twice(centre), *args[13:])
+
+
+def test_area_centres_looked_up_from_the_node() -> None:
+    # area_centre_s=_CENTRE_OF_NODE (edge_graphs' kernel path: the centres looked up in the
+    # kernel) gives the graphs of the explicit centres, on both paths.
+    from mivecc_env.sim.state_graph import _CENTRE_OF_NODE, edge_graphs
+
+    cfg = MiVeCCConfig(rows=2, cols=3, scheme="EEC")
+    sim = Simulator(cfg, batch_size=2, seed=[3, 4], densities=[1200.0, 2700.0])
+    for _ in range(160):
+        sim.step()
+    net, view, b, k = sim.network, sim.view, sim.batch_size, cfg.k_edge
+    v = sim.v.ravel()[view.vehicle]
+    a = sim.a.ravel()[view.vehicle]
+    area = net.control_area(view.lane, view.s)
+    dec, node, col = select_edge_decisions(net, view, sim.safety.sv, k, cfg, area)
+    centre = graph_kernel.area_centres(view.lane[dec], node % net.n_intersections,
+                                       net.lane_intersections, net.lane_centres_s)
+    args = (net, view, v, a, dec, node, col, net.n_intersections, b, k,
+            2 * cfg.control_radius_m, cfg)
+    want = build_graphs(*args, centre, cfg.control_radius_m, use_kernel=False)
+    for got in (build_graphs(*args, _CENTRE_OF_NODE, cfg.control_radius_m, use_kernel=True),
+                build_graphs(*args, _CENTRE_OF_NODE, cfg.control_radius_m, use_kernel=False),
+                edge_graphs(net, view, sim.safety.sv, v, a, b, cfg, area)):
+        for f in ("obs", "mask", "slot", "view_index"):
+            assert getattr(got, f).tobytes() == getattr(want, f).tobytes(), f
