@@ -46,12 +46,12 @@ def test_rate_without_floor_is_poisson() -> None:
 
 
 def test_headway_floor_and_queue_growth() -> None:
-    # 2100 veh/h for 600 s with nobody entering: ~300 per lane, beyond the initial 128-slot
+    # 2100 veh/h for 600 s with nobody entering: ~300 per lane, beyond the initial 256-slot
     # ring buffer, so the buffer must grow without losing or reordering anyone
     proc = ArrivalProcess(2, 4, 2100.0, 1.0)
     proc.reset([np.random.SeedSequence(1), np.random.SeedSequence(2)])
     proc.advance(600.0)
-    assert proc.times.shape[2] > 128
+    assert proc.times.shape[2] > 256
     for env in range(2):
         for lane in range(4):
             n = int(proc.arrived[env, lane])
@@ -179,3 +179,24 @@ def test_blocked_entry_queues_and_never_drops() -> None:
     # collision check, so each one is seen at least once
     assert len(entered) == n
     assert entered == expected[:n]
+
+
+def test_arrival_times_are_blocks_of_cumulative_gaps() -> None:
+    """The stream is pinned, whatever the draw size: gap i = max(exponential draw i of the
+    lane's generator, headway); times accumulate in blocks of 32 (each block: the last time
+    before it + the running sum of its gaps), exactly."""
+    proc = ArrivalProcess(1, 3, 1800.0, 1.0)
+    seed = np.random.SeedSequence(99)
+    proc.reset([seed])
+    proc.advance(1000.0)  # several draws per lane
+    for lane, child in enumerate(np.random.SeedSequence(99).spawn(3)):  # the same children
+        n = int(proc.arrived[0, lane])
+        assert n > 200
+        gaps = np.maximum(np.random.default_rng(child).exponential(2.0, n + 64), 1.0)
+        want, last = [], 0.0
+        for start in range(0, gaps.size, 32):
+            block = last + np.cumsum(gaps[start:start + 32])
+            want.extend(block.tolist())
+            last = block[-1]
+        got = drain(proc, 0, lane)
+        assert got == want[:n]
