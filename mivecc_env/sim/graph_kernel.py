@@ -238,6 +238,66 @@ def _less(a, b):  # pragma: no cover - compiled
     return a < b or (b != b and a == a)
 
 
+#: Buckets of :func:`_bucket_prefilter`.
+_N_BUCKETS = 64
+
+
+@njit
+def _bucket_prefilter(members, key, k, hist, order):  # pragma: no cover - compiled
+    """The members that can be among the ``k`` lowest keys, in (key bucket, index) order.
+
+    Buckets split ``[min, max]`` of the finite keys evenly (NaN: one bucket after them); a
+    bucket is a non-decreasing function of the key, so equal keys share a bucket and keep
+    their index order, and every member of a bucket past the one holding the k-th lowest key
+    has a larger key than the k lowest. Returns ``members`` unchanged if a key is infinite.
+    """
+    n = members.shape[0]
+    lo = np.inf
+    hi = -np.inf
+    for t in range(n):
+        x = key[U(members[U(t)])]
+        if x == np.inf or x == -np.inf:
+            return members
+        if x < lo:
+            lo = x
+        if x > hi:
+            hi = x
+    nb = _N_BUCKETS
+    scale = 0.0
+    if hi > lo:
+        scale = nb / (hi - lo)
+        if not np.isfinite(scale):
+            return members
+    for j in range(nb + 2):
+        hist[j] = 0
+    for t in range(n):
+        x = key[U(members[U(t)])]
+        b = nb + 1  # NaN
+        if x == x:
+            b = min(np.int64((x - lo) * scale), nb - 1)
+        hist[U(b)] += 1
+    top = 0  # the bucket holding the k-th lowest key
+    total = hist[0]
+    while total < k:
+        top += 1
+        total += hist[U(top)]
+    start = 0  # bucket offsets (exclusive prefix sums) of buckets 0..top
+    for j in range(top + 1):
+        c = hist[U(j)]
+        hist[U(j)] = start
+        start += c
+    for t in range(n):
+        i = members[U(t)]
+        x = key[U(i)]
+        b = nb + 1
+        if x == x:
+            b = min(np.int64((x - lo) * scale), nb - 1)
+        if b <= top:
+            order[U(hist[U(b)])] = i
+            hist[U(b)] += 1
+    return order[:start]
+
+
 @njit
 def _select(group, key, n_groups, k):  # pragma: no cover - compiled
     """(3, n_out) rows (index, group, column) of the selection (one array: each array a
@@ -264,26 +324,33 @@ def _select(group, key, n_groups, k):  # pragma: no cover - compiled
     out_col = out[2]
     buf_key = np.empty(max(k, 1), np.float64)
     buf_idx = np.empty(max(k, 1), np.int64)
+    hist = np.zeros(_N_BUCKETS + 2, np.int64)
+    order = np.empty(members.shape[0], np.int64)
     m_out = 0
     for g in range(n_groups):
+        first, last = count[g], count[g + 1]
+        seq = members[first:last]
+        if last - first > 2 * k:
+            seq = _bucket_prefilter(members[first:last], key, k, hist, order)
         # the k lowest keys of the group, kept sorted by insertion; members come in index
-        # order and an equal key never moves ahead, so ties keep index order (a stable sort)
+        # order (or bucket then index order) and an equal key never moves ahead, so ties
+        # keep index order (a stable sort)
         m = 0
-        for t in range(count[g], count[g + 1]):
-            i = members[t]
-            x = key[i]
+        for t in range(seq.shape[0]):
+            i = seq[U(t)]
+            x = key[U(i)]
             if m == k:
-                if not _less(x, buf_key[k - 1]):
+                if not _less(x, buf_key[U(k - 1)]):
                     continue
             else:
                 m += 1
             pos = m - 1
-            while pos > 0 and _less(x, buf_key[pos - 1]):
-                buf_key[pos] = buf_key[pos - 1]
-                buf_idx[pos] = buf_idx[pos - 1]
+            while pos > 0 and _less(x, buf_key[U(pos - 1)]):
+                buf_key[U(pos)] = buf_key[U(pos - 1)]
+                buf_idx[U(pos)] = buf_idx[U(pos - 1)]
                 pos -= 1
-            buf_key[pos] = x
-            buf_idx[pos] = i
+            buf_key[U(pos)] = x
+            buf_idx[U(pos)] = i
         for c in range(m):
             out_idx[m_out] = buf_idx[c]
             out_group[m_out] = g

@@ -226,3 +226,30 @@ def test_area_centres_looked_up_from_the_node() -> None:
                 edge_graphs(net, view, sim.safety.sv, v, a, b, cfg, area)):
         for f in ("obs", "mask", "slot", "view_index"):
             assert getattr(got, f).tobytes() == getattr(want, f).tobytes(), f
+
+
+def test_select_per_group_large_groups_with_infinities_and_one_value() -> None:
+    # Groups larger than 2k go through the bucket prefilter: infinite keys (the prefilter
+    # steps aside), one repeated value, huge and tiny ranges, NaN all give the stable sort.
+    rng = np.random.default_rng(3)
+    for trial in range(60):
+        n, n_groups, k = (int(x) for x in (rng.integers(50, 900), rng.integers(1, 5),
+                                            rng.integers(1, 25)))
+        group = rng.integers(-1, n_groups, n)
+        scale = [1e-300, 1.0, 1e300][trial % 3]
+        key = np.round(rng.normal(size=n), 2) * scale
+        if trial % 4 == 0:
+            key[rng.random(n) < 0.02] = np.inf
+            key[rng.random(n) < 0.02] = -np.inf
+        if trial % 5 == 0:
+            key[:] = 0.5
+        key[rng.random(n) < 0.03] = np.nan
+        idx, grp, col = graph_kernel.select_per_group(group, key, n_groups, k)
+        inside = np.flatnonzero(group >= 0)
+        order = inside[np.lexsort((key[inside], group[inside]))]
+        ref_group = group[order]
+        rank = np.arange(order.size) - np.searchsorted(ref_group, ref_group)
+        keep = rank < k
+        np.testing.assert_array_equal(idx, order[keep])
+        np.testing.assert_array_equal(grp, ref_group[keep])
+        np.testing.assert_array_equal(col, rank[keep])
