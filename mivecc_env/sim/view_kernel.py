@@ -46,17 +46,18 @@ _VEHICLE, _ENV, _LANE, _OWN_POINT, _FRONT, _BACK, _LEADER, _FOLLOWER = range(8) 
 _S, _D_FRONT, _D_BACK = range(3)  # vf
 _GROUP, _POINT_VEHICLE, _RUN_START, _RUN_END = range(4)  # pi
 _KEY, _SORTED, _SRC, _OWN = range(4)  # li
-_POS, _SORTED_POS = range(2)  # lf
+_POS = 0  # lf
 
 
 @njit
 def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, window_m, clear_m,
-           seg, off, n_on, candidate, n_lanes, q_scale, qbits, lbits, qdrop, li, lf, counts, vi,
-           vf, pi, pf, pb):  # pragma: no cover
+           centre_at, candidate, n_lanes, q_scale, qbits, lbits, qdrop, li, lf, counts,
+           lane_end, vi, vf, pi, pf, pb):  # pragma: no cover
     """The whole view, one environment after the other (see the module docstring).
 
-    ``li``/``lf``/``counts``: the scratch arrays of :func:`_scratch` (rows: keys, sorted keys,
-    vehicles, own points / positions, sorted positions); ``vi``, ``vf``, ``pi``, ``pf``,
+    ``li``/``lf``/``counts``/``lane_end``: the scratch arrays of :func:`_scratch` (rows:
+    keys, sorted keys, vehicles, own points / positions; bucket counts; each lane's end in
+    the sorted points); ``vi``, ``vf``, ``pi``, ``pf``,
     ``pb``: the view's blocks of :func:`_allocate` (rows as in ``_FIELDS``), with room for
     every vehicle and point. Writes them and returns (vehicles, points, every key in range).
     """
@@ -93,8 +94,8 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
             x = vf[_S, v0 + iv]
             c0 = 0
             if candidate:  # only the two conflict points of the one intersection in range
-                kc = np.int64(np.ceil((x - clear_m - off) / seg)) - 1
-                c0 = 2 * min(max(kc, 0), n_on - 1)
+                for t in range(centre_at.size):  # the centre index (see _centre_thresholds)
+                    c0 += 2 * np.int64(x >= centre_at[t])
             for c in range(c0, c0 + n_col):
                 delta = x - lane_cp_s[ln, c]
                 if delta >= -window_m and delta <= clear_m:
@@ -141,6 +142,7 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
         a = 0
         for ln in range(n_lanes):
             e = counts[((ln + 1) << bb) - 1]  # end of the lane's last bucket
+            lane_end[ln] = e
             for r in range(out + a, out + e):
                 pi[_GROUP, r] = g0 + ln
                 pi[_RUN_START, r] = out + a
@@ -149,33 +151,42 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
         k = 0
         for r in range(m):
             jl = li[_SORTED, r] & lmask
-            y = lf[_POS, jl]
-            lf[_SORTED_POS, r] = y
-            pf[out + r] = y
+            pf[out + r] = lf[_POS, jl]
             pi[_POINT_VEHICLE, out + r] = v0 + li[_SRC, jl]
             is_own = jl < nv
             pb[out + r] = is_own
             li[_OWN, k] = r  # kept where the point is own (no data-dependent branch)
             k += np.int64(is_own)
+        ln = 0
+        a = 0  # the current lane's run: [a, e)
+        e = lane_end[0]
+        last = out + m - 1
+        prev_r = -1  # the previous own point and its vehicle
+        prev_i = 0
         for k in range(nv):
             r = li[_OWN, k]
-            key = li[_SORTED, r]
-            i = v0 + (key & lmask)
-            ln = key >> shift_l
-            e = counts[((ln + 1) << bb) - 1]  # the lane's run: [a, e)
-            a = counts[(ln << bb) - 1] if ln > 0 else 0
-            x = lf[_SORTED_POS, r]
-            vi[_OWN_POINT, i] = out + r
-            yb = lf[_SORTED_POS, max(r - 1, 0)]
-            vi[_BACK, i] = out + r - 1 if r > a else -1
+            i = v0 + (li[_SORTED, r] & lmask)
+            while r >= e:  # the next lane with points
+                ln += 1
+                a = e
+                e = lane_end[ln]
+            same = prev_r >= a  # the previous own point is on this lane: the follower
+            vi[_FOLLOWER, i] = prev_i if same else -1
+            if k > 0:
+                vi[_LEADER, prev_i] = i if same else -1
+            R = out + r
+            x = pf[R]
+            yb = pf[max(R - 1, out)]
+            yf = pf[min(R + 1, last)]
+            vi[_OWN_POINT, i] = R
+            vi[_BACK, i] = R - 1 if r > a else -1
             vf[_D_BACK, i] = x - yb if r > a else np.inf
-            yf = lf[_SORTED_POS, min(r + 1, m - 1)]
-            vi[_FRONT, i] = out + r + 1 if r + 1 < e else -1
+            vi[_FRONT, i] = R + 1 if r + 1 < e else -1
             vf[_D_FRONT, i] = yf - x if r + 1 < e else np.inf
-            rp = li[_OWN, max(k - 1, 0)]  # the previous own point: on this lane if r > it >= a
-            vi[_FOLLOWER, i] = v0 + (li[_SORTED, rp] & lmask) if k > 0 and rp >= a else -1
-            rn = li[_OWN, min(k + 1, nv - 1)]
-            vi[_LEADER, i] = v0 + (li[_SORTED, rn] & lmask) if k + 1 < nv and rn < e else -1
+            prev_r = r
+            prev_i = i
+        if nv > 0:
+            vi[_LEADER, prev_i] = -1
         out += m
     return n, out, not bad
 
@@ -206,12 +217,12 @@ def _allocate(n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
             "pb": np.empty(n_points, np.bool_)}
 
 
-def _scratch(n_points: int, n_buckets: int) -> tuple[np.ndarray, ...]:
-    """The per-environment scratch arrays of :func:`_build` (room for ``n_points``): keys,
-    sorted keys, vehicles, own points (int64 rows), positions, sorted positions (float64
-    rows), and the bucket counts."""
-    return (np.empty((4, n_points), np.int64), np.empty((2, n_points)),
-            np.empty(n_buckets, np.int64))
+def _scratch(n_points: int, n_buckets: int, n_lanes: int) -> tuple[np.ndarray, ...]:
+    """The per-environment scratch arrays of :func:`_build`: keys, sorted keys, vehicles, own
+    points (int64 rows) and positions (room for ``n_points``), the bucket counts and the
+    lanes' ends."""
+    return (np.empty((4, n_points), np.int64), np.empty((1, n_points)),
+            np.empty(n_buckets, np.int64), np.empty(n_lanes, np.int64))
 
 
 class ViewWorkspace:
@@ -232,9 +243,9 @@ class ViewWorkspace:
         self._turn = 0
         #: arguments and result of the last ``_layout`` (the key layout of the batch shape)
         self.layout_key: tuple | None = None
-        self.layout: tuple[int, int, int, int] | None = None
+        self.layout: tuple[int, int, int, int, np.ndarray] | None = None
         #: per-environment scratch arrays of the build (see :func:`_scratch`)
-        self.scratch: tuple[np.ndarray, ...] = _scratch(0, 0)
+        self.scratch: tuple[np.ndarray, ...] = _scratch(0, 0, 0)
 
     def take(self, n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
         """The next buffer set, with room for ``n_vehicles`` vehicles and ``n_points``
@@ -246,21 +257,57 @@ class ViewWorkspace:
             self._sets[self._turn] = bufs
         return bufs
 
-    def take_scratch(self, n_points: int, n_buckets: int) -> tuple[np.ndarray, ...]:
+    def take_scratch(self, n_points: int, n_buckets: int, n_lanes: int,
+                     ) -> tuple[np.ndarray, ...]:
         """The scratch arrays, with room for ``n_points`` points of one environment and
-        exactly ``n_buckets`` bucket counts."""
-        if self.scratch[1].shape[1] < n_points or self.scratch[2].size != n_buckets:
-            self.scratch = _scratch(n_points, n_buckets)
+        exactly ``n_buckets`` bucket counts and ``n_lanes`` lanes."""
+        if (self.scratch[1].shape[1] < n_points or self.scratch[2].size != n_buckets
+                or self.scratch[3].size != n_lanes):
+            self.scratch = _scratch(n_points, n_buckets, n_lanes)
         return self.scratch
+
+
+def _centre_index(x: float, seg: float, off: float, clear_m: float, n_on: int) -> int:
+    """The reference's candidate centre index of a position ``x`` [m] (see
+    ``virtual_lane._candidate_conflict_columns``), with its float64 operations."""
+    k = int(np.ceil((np.float64(x) - clear_m - off) / seg)) - 1
+    return min(max(k, 0), n_on - 1)
+
+
+def _centre_thresholds(seg: float, off: float, clear_m: float, n_on: int) -> np.ndarray:
+    """The least float64 position at which the candidate centre index reaches 1, 2, ...,
+    ``n_on - 1`` [m]: the index is then the number of thresholds at or below a position.
+
+    The index is a non-decreasing function of the position (each float operation is
+    monotone), so a bisection over the ordered bit patterns of the non-negative doubles
+    finds each threshold exactly; positions below 0 have index 0.
+    """
+    out = np.empty(max(n_on - 1, 0))
+    for k in range(1, n_on):
+        lo = 0  # bit pattern of 0.0: index below k
+        hi = int(np.float64(np.inf).view(np.int64))  # index n_on - 1 >= k at +inf
+        if _centre_index(0.0, seg, off, clear_m, n_on) >= k:
+            out[k - 1] = -np.inf
+            continue
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            if _centre_index(float(np.int64(mid).view(np.float64)), seg, off, clear_m,
+                             n_on) >= k:
+                hi = mid
+            else:
+                lo = mid
+        out[k - 1] = np.int64(hi).view(np.float64)
+    return out
 
 
 def _layout(
     network: GridNetwork, window_m: float, clear_m: float, bsz: int, cap: int, q_scale: float,
     candidate: bool,
-) -> tuple[int, int, int, int] | None:
+) -> tuple[int, int, int, int, np.ndarray] | None:
     """(conflict columns tested per vehicle, position bits, local point-index bits, position
-    bits dropped in the sort's bucket index) of the packed key, or None where the reference
-    would not use its radix sort (its float argsort may order ties otherwise).
+    bits dropped in the sort's bucket index, the candidate centre thresholds of
+    :func:`_centre_thresholds`) of the packed key, or None where the reference would not
+    use its radix sort (its float argsort may order ties otherwise).
 
     A bucket of the sort is the key's top bits: the lane and the position's top bits, about
     one to two buckets per point of the environment (at least one per lane; :func:`_build`
@@ -282,7 +329,10 @@ def _layout(
     qdrop = qbits
     while qdrop > 0 and network.n_lanes << (qbits - qdrop + 1) <= target:
         qdrop -= 1
-    return n_col, qbits, lbits, qdrop
+    n_on = network.lane_centres_s.shape[1]
+    centre_at = (_centre_thresholds(network.segment_length_m, network.lane_offset_m, clear_m,
+                                    n_on) if candidate else np.empty(0))
+    return n_col, qbits, lbits, qdrop, centre_at
 
 
 def build_view_fast(
@@ -310,23 +360,21 @@ def build_view_fast(
             workspace.layout_key, workspace.layout = key, layout
     if layout is None:
         return None
-    n_col, qbits, lbits, qdrop = layout
+    n_col, qbits, lbits, qdrop, centre_at = layout
     n_lanes = network.n_lanes
     n_slots = bsz * cap
     n_buckets = n_lanes << (qbits - qdrop)
     if workspace is None:
         bufs = _allocate(n_slots, n_slots * (1 + n_col))
-        scratch = _scratch(cap * (1 + n_col), n_buckets)
+        scratch = _scratch(cap * (1 + n_col), n_buckets, n_lanes)
     else:
         bufs = workspace.take(n_slots, n_slots * (1 + n_col))
-        scratch = workspace.take_scratch(cap * (1 + n_col), n_buckets)
+        scratch = workspace.take_scratch(cap * (1 + n_col), n_buckets, n_lanes)
     n, size, ok = _build(
         active, lane, s, network.lane_cp_s, network.lane_cp_other_lane,
-        network.lane_cp_other_s, float(window_m), float(clear_m),
-        float(network.segment_length_m), float(network.lane_offset_m),
-        int(network.lane_centres_s.shape[1]), bool(candidate), n_lanes, float(q_scale),
-        qbits, lbits, qdrop, *scratch, bufs["vi"], bufs["vf"], bufs["pi"], bufs["pf"],
-        bufs["pb"],
+        network.lane_cp_other_s, float(window_m), float(clear_m), centre_at, bool(candidate),
+        n_lanes, float(q_scale), qbits, lbits, qdrop, *scratch, bufs["vi"], bufs["vf"],
+        bufs["pi"], bufs["pf"], bufs["pb"],
     )
     if not ok:
         return None

@@ -98,3 +98,30 @@ def test_empty_batch_and_workspace_growth() -> None:
         if previous is not None:
             _assert_same_view(previous[0], build_view_reference(net, 75.0, 10.0, *previous[1]))
         previous = (view, (active, lane, s))
+
+
+@pytest.mark.parametrize(("seg", "off", "clear", "n_on"),
+                         [(150.0, 5.0, 10.0, 3), (100.0, 3.5, 7.25, 5), (0.3, 0.1, 0.05, 4)])
+def test_centre_thresholds_give_the_reference_index(seg, off, clear, n_on) -> None:
+    """The kernel's candidate centre index (thresholds found once per layout) equals the
+    reference's ceil-division index at and next to every threshold and at random positions."""
+    at = view_kernel._centre_thresholds(seg, off, clear, n_on)
+    assert at.size == n_on - 1 and np.all(np.diff(at) > 0)
+    rng = np.random.default_rng(0)
+    xs = [*rng.uniform(-seg, (n_on + 1) * seg, 2000), 0.0, -0.0]
+    for t in at:
+        xs += [t, np.nextafter(t, -np.inf), np.nextafter(t, np.inf)]
+    for x in xs:
+        assert int(np.sum(x >= at)) == view_kernel._centre_index(x, seg, off, clear, n_on), x
+
+
+def test_centre_index_is_the_reference_formula() -> None:
+    from mivecc_env.sim.virtual_lane import _candidate_conflict_columns
+
+    net = _grid(3, 3)
+    xs = np.random.default_rng(1).uniform(0.0, 600.0, 5000)
+    cols = _candidate_conflict_columns(net, 75.0, 10.0, xs)
+    n_on = net.lane_centres_s.shape[1]
+    got = [view_kernel._centre_index(x, net.segment_length_m, net.lane_offset_m, 10.0, n_on)
+           for x in xs]
+    np.testing.assert_array_equal(cols[:, 0] // 2, got)
