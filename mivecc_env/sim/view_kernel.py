@@ -47,6 +47,9 @@ _S, _D_FRONT, _D_BACK = range(3)  # vf
 _GROUP, _POINT_VEHICLE, _RUN_START, _RUN_END = range(4)  # pi
 _KEY, _SORTED, _SRC, _OWN = range(4)  # li
 _POS = 0  # lf
+#: Indices are cast to unsigned where the compiler cannot prove them non-negative: numba
+#: then skips the negative-index wraparound (a large share of the kernel's instructions).
+_U = np.uint64
 
 
 @njit
@@ -77,35 +80,38 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
             if active[b, k]:
                 x = s[b, k]
                 ln = lane[b, k]
-                vi[_VEHICLE, n] = b * cap + k
-                vi[_ENV, n] = b
-                vi[_LANE, n] = ln
-                vf[_S, n] = x
-                lf[_POS, m] = x
-                li[_SRC, m] = m
+                un, um = _U(n), _U(m)
+                vi[_VEHICLE, un] = b * cap + k
+                vi[_ENV, un] = b
+                vi[_LANE, un] = ln
+                vf[_S, un] = x
+                lf[_POS, um] = x
+                li[_SRC, um] = m
                 q = np.int64((x + window_m) * q_scale)
                 bad |= (q > qmax) | (q < 0)
-                li[_KEY, m] = (ln << shift_l) | (min(max(q, 0), qmax) << lbits) | m
+                li[_KEY, um] = (ln << shift_l) | (min(max(q, 0), qmax) << lbits) | m
                 n += 1
                 m += 1
         nv = m
         for iv in range(nv):
-            ln = vi[_LANE, v0 + iv]
-            x = vf[_S, v0 + iv]
+            ln = _U(vi[_LANE, _U(v0 + iv)])
+            x = vf[_S, _U(v0 + iv)]
             c0 = 0
             if candidate:  # only the two conflict points of the one intersection in range
                 for t in range(centre_at.size):  # the centre index (see _centre_thresholds)
                     c0 += 2 * np.int64(x >= centre_at[t])
             for c in range(c0, c0 + n_col):
-                delta = x - lane_cp_s[ln, c]
+                uc = _U(c)
+                delta = x - lane_cp_s[ln, uc]
                 if delta >= -window_m and delta <= clear_m:
-                    y = lane_cp_other_s[ln, c] + delta
-                    lf[_POS, m] = y
-                    li[_SRC, m] = iv
+                    y = lane_cp_other_s[ln, uc] + delta
+                    um = _U(m)
+                    lf[_POS, um] = y
+                    li[_SRC, um] = iv
                     q = np.int64((y + window_m) * q_scale)
                     bad |= (q > qmax) | (q < 0)
-                    li[_KEY, m] = ((lane_cp_other_lane[ln, c] << shift_l)
-                                | (min(max(q, 0), qmax) << lbits) | m)
+                    li[_KEY, um] = ((lane_cp_other_lane[ln, uc] << shift_l)
+                                    | (min(max(q, 0), qmax) << lbits) | m)
                     m += 1
         # 2. sort: counting sort by bucket (one to two per point), then insertion sort within
         # the buckets
@@ -116,7 +122,7 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
         nb = n_lanes << (qbits - qd)
         counts[:nb] = 0
         for t in range(m):
-            counts[li[_KEY, t] >> bshift] += 1
+            counts[_U(li[_KEY, t] >> bshift)] += 1
         total = 0
         for t in range(nb):
             c = counts[t]
@@ -124,26 +130,27 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
             total += c
         for t in range(m):
             key = li[_KEY, t]
-            d = counts[key >> bshift]
-            counts[key >> bshift] = d + 1
-            li[_SORTED, d] = key
+            ub = _U(key >> bshift)
+            d = counts[ub]
+            counts[ub] = d + 1
+            li[_SORTED, _U(d)] = key
         for t in range(1, m):
             key = li[_SORTED, t]
-            if li[_SORTED, t - 1] > key:
+            if li[_SORTED, _U(t - 1)] > key:
                 u = t
-                while u > 0 and li[_SORTED, u - 1] > key:
-                    li[_SORTED, u] = li[_SORTED, u - 1]
+                while u > 0 and li[_SORTED, _U(u - 1)] > key:
+                    li[_SORTED, _U(u)] = li[_SORTED, _U(u - 1)]
                     u -= 1
-                li[_SORTED, u] = key
+                li[_SORTED, _U(u)] = key
         # 3. the environment's part of the view: runs (one per lane: its buckets), points,
         # then the vehicles from their own points (in sorted order)
         bb = qbits - qd  # bucket bits per lane
         g0 = b * n_lanes
         a = 0
         for ln in range(n_lanes):
-            e = counts[((ln + 1) << bb) - 1]  # end of the lane's last bucket
+            e = counts[_U(((ln + 1) << bb) - 1)]  # end of the lane's last bucket
             lane_end[ln] = e
-            for r in range(out + a, out + e):
+            for r in range(_U(out + a), _U(out + e)):
                 pi[_GROUP, r] = g0 + ln
                 pi[_RUN_START, r] = out + a
                 pi[_RUN_END, r] = out + e
@@ -151,11 +158,12 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
         k = 0
         for r in range(m):
             jl = li[_SORTED, r] & lmask
-            pf[out + r] = lf[_POS, jl]
-            pi[_POINT_VEHICLE, out + r] = v0 + li[_SRC, jl]
+            ur = _U(out + r)
+            pf[ur] = lf[_POS, _U(jl)]
+            pi[_POINT_VEHICLE, ur] = v0 + li[_SRC, _U(jl)]
             is_own = jl < nv
-            pb[out + r] = is_own
-            li[_OWN, k] = r  # kept where the point is own (no data-dependent branch)
+            pb[ur] = is_own
+            li[_OWN, _U(k)] = r  # kept where the point is own (no data-dependent branch)
             k += np.int64(is_own)
         ln = 0
         a = 0  # the current lane's run: [a, e)
@@ -165,28 +173,29 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
         prev_i = 0
         for k in range(nv):
             r = li[_OWN, k]
-            i = v0 + (li[_SORTED, r] & lmask)
+            i = v0 + (li[_SORTED, _U(r)] & lmask)
+            ui = _U(i)
             while r >= e:  # the next lane with points
                 ln += 1
                 a = e
-                e = lane_end[ln]
+                e = lane_end[_U(ln)]
             same = prev_r >= a  # the previous own point is on this lane: the follower
-            vi[_FOLLOWER, i] = prev_i if same else -1
+            vi[_FOLLOWER, ui] = prev_i if same else -1
             if k > 0:
-                vi[_LEADER, prev_i] = i if same else -1
+                vi[_LEADER, _U(prev_i)] = i if same else -1
             R = out + r
-            x = pf[R]
-            yb = pf[max(R - 1, out)]
-            yf = pf[min(R + 1, last)]
-            vi[_OWN_POINT, i] = R
-            vi[_BACK, i] = R - 1 if r > a else -1
-            vf[_D_BACK, i] = x - yb if r > a else np.inf
-            vi[_FRONT, i] = R + 1 if r + 1 < e else -1
-            vf[_D_FRONT, i] = yf - x if r + 1 < e else np.inf
+            x = pf[_U(R)]
+            yb = pf[_U(max(R - 1, out))]
+            yf = pf[_U(min(R + 1, last))]
+            vi[_OWN_POINT, ui] = R
+            vi[_BACK, ui] = R - 1 if r > a else -1
+            vf[_D_BACK, ui] = x - yb if r > a else np.inf
+            vi[_FRONT, ui] = R + 1 if r + 1 < e else -1
+            vf[_D_FRONT, ui] = yf - x if r + 1 < e else np.inf
             prev_r = r
             prev_i = i
         if nv > 0:
-            vi[_LEADER, prev_i] = -1
+            vi[_LEADER, _U(prev_i)] = -1
         out += m
     return n, out, not bad
 
