@@ -113,15 +113,14 @@ def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_b
 
 @njit
 def _sensitive(ttc, n_sensitive):  # pragma: no cover
-    """Indices (ascending) of the ``n_sensitive`` TTCs in (0, 1) s."""
-    idx = np.empty(n_sensitive, np.int64)
+    """Indices (ascending) of the ``n_sensitive`` TTCs in (0, 1) s (listed without a branch)."""
+    idx = np.empty(n_sensitive + 1, np.int64)
     k = 0
     for i in range(ttc.size):
         t = ttc[i]
-        if t > 0.0 and t < 1.0:
-            idx[k] = i
-            k += 1
-    return idx
+        idx[k] = i
+        k += (t > 0.0) & (t < 1.0)
+    return idx[:n_sensitive]
 
 
 @njit
