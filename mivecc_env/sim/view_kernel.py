@@ -218,12 +218,16 @@ _FIELDS = (
 _PER_POINT = ("pi", "pf", "pb")
 
 
-def _allocate(n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
+def _allocate(n_vehicles: int, n_points: int) -> dict:
     """The blocks of one view: vehicle int64 rows and float64 rows (room for ``n_vehicles``),
-    point int64 rows, positions and own flags (room for ``n_points``)."""
-    return {"vi": np.empty((8, n_vehicles), np.int64), "vf": np.empty((3, n_vehicles)),
+    point int64 rows, positions and own flags (room for ``n_points``); ``"fields"``: each
+    field's whole row and whether it is per point, in the order of ``_FIELDS``."""
+    bufs = {"vi": np.empty((8, n_vehicles), np.int64), "vf": np.empty((3, n_vehicles)),
             "pi": np.empty((4, n_points), np.int64), "pf": np.empty(n_points),
             "pb": np.empty(n_points, np.bool_)}
+    bufs["fields"] = [(bufs[block] if row is None else bufs[block][row], block in _PER_POINT)
+                      for _name, block, row in _FIELDS]
+    return bufs
 
 
 def _scratch(n_points: int, n_buckets: int, n_lanes: int) -> tuple[np.ndarray, ...]:
@@ -248,7 +252,7 @@ class ViewWorkspace:
     """
 
     def __init__(self) -> None:
-        self._sets: list[dict[str, np.ndarray]] = [{}, {}]
+        self._sets: list[dict] = [{}, {}]
         self._turn = 0
         #: arguments and result of the last ``_layout`` (the key layout of the batch shape)
         self.layout_key: tuple | None = None
@@ -256,7 +260,7 @@ class ViewWorkspace:
         #: per-environment scratch arrays of the build (see :func:`_scratch`)
         self.scratch: tuple[np.ndarray, ...] = _scratch(0, 0, 0)
 
-    def take(self, n_vehicles: int, n_points: int) -> dict[str, np.ndarray]:
+    def take(self, n_vehicles: int, n_points: int) -> dict:
         """The next buffer set, with room for ``n_vehicles`` vehicles and ``n_points``
         points."""
         self._turn ^= 1
@@ -387,7 +391,6 @@ def build_view_fast(
     )
     if not ok:
         return None
-    return VirtualLaneView(**{
-        name: (bufs[block] if row is None else bufs[block][row])[
-            :size if block in _PER_POINT else n]
-        for name, block, row in _FIELDS})
+    # positional: _FIELDS is in the dataclass's field order
+    return VirtualLaneView(*[row[:size] if per_point else row[:n]
+                             for row, per_point in bufs["fields"]])

@@ -125,3 +125,11 @@ def test_centre_index_is_the_reference_formula() -> None:
     got = [view_kernel._centre_index(x, net.segment_length_m, net.lane_offset_m, 10.0, n_on)
            for x in xs]
     np.testing.assert_array_equal(cols[:, 0] // 2, got)
+
+
+def test_block_rows_are_the_dataclass_fields_in_order() -> None:
+    """The compiled view is built positionally from ``_FIELDS``: same names, same order."""
+    from mivecc_env.sim.virtual_lane import VirtualLaneView
+
+    assert [f.name for f in dataclasses.fields(VirtualLaneView)] == [
+        name for name, _block, _row in view_kernel._FIELDS]
