@@ -134,7 +134,14 @@ def _build(active, lane, s, lane_cp_s, lane_cp_other_lane, lane_cp_other_s, wind
             d = counts[ub]
             counts[ub] = d + 1
             li[_SORTED, _U(d)] = key
-        for t in range(1, m):
+        if m > 0:  # one branch-free bubble pass: a pair of points in a bucket comes out sorted
+            hi = li[_SORTED, 0]
+            for t in range(1, m):
+                key = li[_SORTED, t]
+                li[_SORTED, _U(t - 1)] = min(hi, key)
+                hi = max(hi, key)
+            li[_SORTED, _U(m - 1)] = hi
+        for t in range(1, m):  # what the bubble pass left (bigger buckets: rare)
             key = li[_SORTED, t]
             if li[_SORTED, _U(t - 1)] > key:
                 u = t
