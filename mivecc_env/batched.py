@@ -43,7 +43,7 @@ from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim import cloud_view, edge_selection, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
-from mivecc_env.sim.virtual_lane import VirtualLaneView, density_indicator
+from mivecc_env.sim.virtual_lane import VirtualLaneView
 
 #: Names of the reward terms (the reward of a node is their sum).
 REWARD_TERMS: tuple[str, ...] = ("reward_sv", "reward_velocity", "reward_collision")
@@ -409,8 +409,8 @@ class BatchedMiVeCCEnv:
         if "cloud" in self.observe:
             cview = cloud_view.cloud_virtual_lanes(sim.network, c, view, sim.active, sim.lane,
                                                    sim.s)  # the same view by default
-            di = density_indicator(cview, c.di_n)
-            self._cloud = cloud_graphs(sim.network, cview, di, v, a, b, c, self._cloud_pop)
+            # the density indicator: computed in the cloud selection (config.di_n)
+            self._cloud = cloud_graphs(sim.network, cview, None, v, a, b, c, self._cloud_pop)
         edge_terms, cloud_terms, edge_reward, cloud_reward = self._reward_terms(events)
         steps = self.episode_steps
         edge, cloud = self._edge, self._cloud

@@ -456,21 +456,62 @@ def area_centres(
 
 
 @njit
+def _di_of(p, run_start, run_end, point_pos, n):  # pragma: no cover - compiled
+    """Density indicator of the vehicle whose own point is ``p`` (one formula for
+    :func:`_density_indicator` and :func:`_select_cloud_di`)."""
+    start, end = run_start[p], run_end[p]
+    count = end - start
+    if count < 2:
+        return 0.0
+    ahead = min(p + n, end - 1)
+    behind = max(p - n, start)
+    local = abs(point_pos[ahead] - point_pos[behind]) / max(ahead - behind, 1)
+    mean = abs(point_pos[end - 1] - point_pos[start]) / max(count - 1, 1)
+    return abs(local - mean)
+
+
+@njit
 def _density_indicator(own_point, run_start, run_end, point_pos, n):  # pragma: no cover
     out = np.empty(own_point.shape[0], np.float64)
     for i in range(own_point.shape[0]):
-        p = own_point[i]
-        start, end = run_start[p], run_end[p]
-        count = end - start
-        if count < 2:
-            out[i] = 0.0
-            continue
-        ahead = min(p + n, end - 1)
-        behind = max(p - n, start)
-        local = abs(point_pos[ahead] - point_pos[behind]) / max(ahead - behind, 1)
-        mean = abs(point_pos[end - 1] - point_pos[start]) / max(count - 1, 1)
-        out[i] = abs(local - mean)
+        out[i] = _di_of(own_point[i], run_start, run_end, point_pos, n)
     return out
+
+
+@njit
+def _select_cloud_di(env, eligible, own_point, run_start, run_end, point_pos, n, cap,
+                     k):  # pragma: no cover - compiled
+    """:func:`_select_capped_desc` of the density indicator (computed here, only for the
+    eligible vehicles: the others are never ranked)."""
+    m = env.shape[0]
+    group = np.empty(m, np.int64)
+    key = np.zeros(m, np.float64)
+    use = eligible.shape[0] > 0
+    top = -1
+    for i in range(m):
+        if not use or eligible[i]:
+            group[i] = env[i]
+            x = _di_of(own_point[i], run_start, run_end, point_pos, n)
+            key[i] = -(x if (x < cap or x != x) else cap)
+        else:
+            group[i] = -1
+        if env[i] > top:
+            top = env[i]
+    return _select(group, key, top + 1 if m else 0, k)
+
+
+def select_cloud_di(
+    env: np.ndarray, eligible: np.ndarray | None, own_point: np.ndarray,
+    run_start: np.ndarray, run_end: np.ndarray, point_pos: np.ndarray, n: int, cap: float,
+    k: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`select_capped_desc` of ``value = density_indicator(view, n)`` (the view's
+    ``own_point``, ``point_run_start``, ``point_run_end``, ``point_pos``) in one call, the
+    indicator computed only for the ``eligible`` vehicles (identical results)."""
+    idx, grp, col = _select_cloud_di(env, _NO_BOOL if eligible is None else eligible,
+                                     own_point, run_start, run_end, point_pos, int(n),
+                                     float(cap), int(k))
+    return idx, grp, col
 
 
 def density_indicator(

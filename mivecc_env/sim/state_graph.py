@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import graph_kernel
 from mivecc_env.sim.network import GridNetwork
-from mivecc_env.sim.virtual_lane import VirtualLaneView
+from mivecc_env.sim.virtual_lane import VirtualLaneView, density_indicator
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -312,13 +312,16 @@ def edge_graphs(
 
 
 def cloud_graphs(
-    network: GridNetwork, view: VirtualLaneView, di: FloatArray, velocity: FloatArray,
+    network: GridNetwork, view: VirtualLaneView, di: FloatArray | None, velocity: FloatArray,
     accel: FloatArray, batch: int, config: MiVeCCConfig,
     eligible: NDArray[np.bool_] | None = None,
 ) -> StateGraphs:
     """Cloud-node graph, (B, 1, K_cloud, K_cloud, 3).
 
     Args:
+        di: (n,) density indicator of the view vehicles, or ``None``: the view's
+            ``density_indicator(view, config.di_n)`` (computed inside the compiled selection,
+            only for the eligible vehicles, when numba is available).
         eligible: (n,) vehicles the cloud may pick; default
             ``cloud_population(network, view, config.cloud_pick_population)``.
     """
@@ -326,7 +329,14 @@ def cloud_graphs(
     longest = float(network.lane_length.max())
     if eligible is None:
         eligible = cloud_population(network, view, config.cloud_pick_population)
-    decision, env, column = select_cloud_decisions(view, di, k, longest, eligible)
+    if di is None and graph_kernel.HAVE_NUMBA:
+        decision, env, column = graph_kernel.select_cloud_di(
+            view.env, eligible, view.own_point, view.point_run_start, view.point_run_end,
+            view.point_pos, config.di_n, longest, k)
+    else:
+        if di is None:
+            di = density_indicator(view, config.di_n)
+        decision, env, column = select_cloud_decisions(view, di, k, longest, eligible)
     return build_graphs(
         network, view, velocity, accel, decision, env, column, 1, batch, k, longest, config
     )

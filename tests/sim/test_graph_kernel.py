@@ -10,7 +10,13 @@ import pytest
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import graph_kernel
 from mivecc_env.sim.core import Simulator
-from mivecc_env.sim.state_graph import build_graphs, select_cloud_decisions, select_edge_decisions
+from mivecc_env.sim.state_graph import (
+    build_graphs,
+    cloud_graphs,
+    cloud_population,
+    select_cloud_decisions,
+    select_edge_decisions,
+)
 from mivecc_env.sim.virtual_lane import density_indicator, density_indicator_reference
 
 pytestmark = pytest.mark.skipif(not graph_kernel.HAVE_NUMBA, reason="numba not available")
@@ -158,6 +164,44 @@ def test_density_indicator_and_area_centres_match_numpy() -> None:
             assert fast.tobytes() == ref.tobytes()
             checked += int(inside.sum())
     assert checked > 1000
+
+
+def test_fused_density_selection_matches_numpy_indicator() -> None:
+    # select_cloud_di computes the density indicator inside the selection (eligible vehicles
+    # only): the same picks as the numpy indicator + select_per_group, and cloud_graphs with
+    # di=None builds the same graphs as with the indicator given.
+    cfg = MiVeCCConfig(rows=3, cols=3, scheme="EEC")
+    sim = Simulator(cfg, batch_size=4, seed=[5, 6, 7, 8], densities=[300.0, 900.0, 2100.0, 2700.0])
+    rng = np.random.default_rng(0)
+    picked = 0
+    for t in range(300):
+        sim.step()
+        if t % 50 != 49:
+            continue
+        view, net = sim.view, sim.network
+        n_env = int(view.env.max()) + 1
+        v = sim.v.ravel()[view.vehicle]
+        a = sim.a.ravel()[view.vehicle]
+        for n, cap, k in ((1, 1e9, 7), (5, float(net.lane_length.max()), cfg.k_cloud),
+                          (5, 3.0, 20), (40, 1e9, 2)):
+            di = density_indicator_reference(view, n)
+            for eligible in (None, rng.random(view.n_vehicles) < 0.6,
+                             cloud_population(net, view, "conflict_ahead")):
+                group = view.env if eligible is None else np.where(eligible, view.env, -1)
+                ref = graph_kernel.select_per_group(group, -np.minimum(di, cap), n_env, k)
+                got = graph_kernel.select_cloud_di(
+                    view.env, eligible, view.own_point, view.point_run_start,
+                    view.point_run_end, view.point_pos, n, cap, k)
+                for x, y in zip(got, ref, strict=True):
+                    assert x.dtype == y.dtype and x.tobytes() == y.tobytes()
+                picked += ref[0].size
+        pop = cloud_population(net, view, cfg.cloud_pick_population)
+        fused = cloud_graphs(net, view, None, v, a, sim.batch_size, cfg, pop)
+        given = cloud_graphs(net, view, density_indicator_reference(view, cfg.di_n), v, a,
+                             sim.batch_size, cfg, pop)
+        for f in ("obs", "mask", "slot", "view_index"):
+            assert getattr(fused, f).tobytes() == getattr(given, f).tobytes(), f
+    assert picked > 1000
 
 
 def test_kernel_overwrites_every_output_element() -> None:
