@@ -42,7 +42,13 @@ from mivecc_env.cloud_hold import HeldCloudCommands, decision_steps
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.sim import cloud_view, edge_selection, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
-from mivecc_env.sim.state_graph import StateGraphs, cloud_graphs, cloud_population, edge_graphs
+from mivecc_env.sim.state_graph import (
+    StateGraphs,
+    cloud_graphs,
+    cloud_population,
+    edge_graphs,
+    population_limit_s,
+)
 from mivecc_env.sim.virtual_lane import VirtualLaneView
 
 #: Names of the reward terms (the reward of a node is their sum).
@@ -162,6 +168,7 @@ class BatchedMiVeCCEnv:
         self._cloud: StateGraphs | None = None
         self._area = np.zeros(0, dtype=np.int64)
         self._cloud_pop = np.zeros(0, dtype=bool)
+        self._pop_limit = population_limit_s(self.sim.network, c.cloud_pick_population)
         self._cloud_reward_pop = self._cloud_pop
         self._v = np.zeros(0)
         self._started = False
@@ -397,7 +404,8 @@ class BatchedMiVeCCEnv:
         # the section's controlled part under sections=True (released code)
         self._area = area = sections.control_area(sim.network, c, view.lane, view.s)
         # The cloud picks and is rewarded over one population (cloud_pick_population).
-        self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population)
+        self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population,
+                                           self._pop_limit)
         self._cloud_reward_pop = cloud_view.reward_population(
             sim.network, c, view, self._cloud_pop, sim.prev_positions)
         self._v = v
@@ -453,7 +461,11 @@ class BatchedMiVeCCEnv:
             sv_sum = vi = None
             if self._edge is not None:
                 vi = self._edge.view_index.reshape(b * n, -1)
-                sv_sum = np.append(sim.safety.sv, 0.0)[vi].sum(axis=1)
+                # padded columns (-1) add an exact 0.0 (no copy of every vehicle's SV)
+                sv = sim.safety.sv
+                picked = sv[vi] if sv.size else np.zeros(vi.shape)
+                picked[vi < 0] = 0.0
+                sv_sum = picked.sum(axis=1)
             edge_rows, cloud_rows = reward_kernel.terms(
                 view.env, self._area, self._cloud_reward_pop, self._v, c.reward_v_ref_mps, b, n,
                 events.collided_env, events.collided_area, events.collided_vehicles,

@@ -111,20 +111,14 @@ def select_edge_decisions(
     return chosen[keep], node[keep], column[keep]
 
 
-def cloud_population(
-    network: GridNetwork, view: VirtualLaneView, population: str
-) -> NDArray[np.bool_]:
-    """(n,) True for the view vehicles the cloud may pick (config ``cloud_pick_population``).
+def population_limit_s(network: GridNetwork, population: str) -> FloatArray | None:
+    """(n_lanes,) position [m] on each lane before which a vehicle is in the cloud's pick
+    ``population`` (:func:`cloud_population`), or ``None`` for ``"network"`` (everyone).
 
-    * ``"conflict_ahead"``: a conflict point of its lane is still ahead
-      (``s <`` the lane's last conflict point, ``lane_offset_m`` past its last centre);
-    * ``"before_last_centre"``: before the last intersection centre of its lane (the released
-      code); it differs from ``conflict_ahead`` by the ``lane_offset_m`` (5 m) between the last
-      centre and the last conflict point, where a vehicle still crosses one lane;
-    * ``"network"``: every vehicle (on the exit links nothing conflicts any more).
+    Depends only on the network: callers that observe every step compute it once.
     """
     if population == "network":
-        return np.ones(view.n_vehicles, dtype=bool)
+        return None
     if population == "conflict_ahead":
         marks = network.lane_cp_s
     elif population == "before_last_centre":
@@ -134,8 +128,29 @@ def cloud_population(
             "population: must be 'conflict_ahead', 'before_last_centre' or 'network', "
             f"got {population!r}"
         )
-    last = np.where(np.isfinite(marks), marks, -np.inf).max(axis=1)
-    return view.s < last[view.lane]
+    return np.where(np.isfinite(marks), marks, -np.inf).max(axis=1)
+
+
+def cloud_population(
+    network: GridNetwork, view: VirtualLaneView, population: str,
+    limit_s: FloatArray | None = None,
+) -> NDArray[np.bool_]:
+    """(n,) True for the view vehicles the cloud may pick (config ``cloud_pick_population``).
+
+    * ``"conflict_ahead"``: a conflict point of its lane is still ahead
+      (``s <`` the lane's last conflict point, ``lane_offset_m`` past its last centre);
+    * ``"before_last_centre"``: before the last intersection centre of its lane (the released
+      code); it differs from ``conflict_ahead`` by the ``lane_offset_m`` (5 m) between the last
+      centre and the last conflict point, where a vehicle still crosses one lane;
+    * ``"network"``: every vehicle (on the exit links nothing conflicts any more).
+
+    ``limit_s``: ``population_limit_s(network, population)`` if the caller has it already.
+    """
+    if limit_s is None:
+        limit_s = population_limit_s(network, population)
+    if limit_s is None:
+        return np.ones(view.n_vehicles, dtype=bool)
+    return view.s < limit_s[view.lane]
 
 
 def select_cloud_decisions(
