@@ -40,7 +40,7 @@ from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.actions import checked_action
 from mivecc_env.cloud_hold import HeldCloudCommands, decision_steps
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
-from mivecc_env.sim import cloud_view, edge_selection, reward_kernel, sections
+from mivecc_env.sim import cloud_view, edge_selection, graph_kernel, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import (
     StateGraphs,
@@ -402,10 +402,19 @@ class BatchedMiVeCCEnv:
         v = sim.v.ravel()[view.vehicle]
         a = sim.a.ravel()[view.vehicle]
         # the section's controlled part under sections=True (released code)
-        self._area = area = sections.control_area(sim.network, c, view.lane, view.s)
-        # The cloud picks and is rewarded over one population (cloud_pick_population).
-        self._cloud_pop = cloud_population(sim.network, view, c.cloud_pick_population,
-                                           self._pop_limit)
+        net = sim.network
+        if (graph_kernel.HAVE_NUMBA and not c.sections and self._pop_limit is not None
+                and view.lane.dtype == np.int64 and view.s.dtype == np.float64):
+            # both in one compiled pass (the same values as the two calls below)
+            area, self._cloud_pop = graph_kernel.control_area_before(
+                view.lane, view.s, net.lane_centres_s, net.lane_intersections,
+                net.control_radius_m, net.segment_length_m, self._pop_limit)
+        else:
+            area = sections.control_area(net, c, view.lane, view.s)
+            # The cloud picks and is rewarded over one population (cloud_pick_population).
+            self._cloud_pop = cloud_population(net, view, c.cloud_pick_population,
+                                               self._pop_limit)
+        self._area = area
         self._cloud_reward_pop = cloud_view.reward_population(
             sim.network, c, view, self._cloud_pop, sim.prev_positions)
         self._v = v

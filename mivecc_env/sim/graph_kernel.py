@@ -524,16 +524,44 @@ def density_indicator(
 
 
 @njit
+def _area_of(lane, s, lane_centres_s, lane_intersections, radius, seg):  # pragma: no cover
+    """Control area of one point (one formula for :func:`_control_area` and
+    :func:`_control_area_before`)."""
+    k = np.int64(np.floor((s + radius) / seg)) - 1
+    k = min(max(k, 0), lane_centres_s.shape[1] - 1)
+    centre = lane_centres_s[lane, k]
+    inside = s >= centre - radius and s < centre + radius
+    return lane_intersections[lane, k] if inside else -1
+
+
+@njit
 def _control_area(lane, s, lane_centres_s, lane_intersections, radius, seg):  # pragma: no cover
     out = np.empty(lane.shape[0], np.int64)
-    n_on = lane_centres_s.shape[1]
     for i in range(lane.shape[0]):
-        k = np.int64(np.floor((s[i] + radius) / seg)) - 1
-        k = min(max(k, 0), n_on - 1)
-        centre = lane_centres_s[lane[i], k]
-        inside = s[i] >= centre - radius and s[i] < centre + radius
-        out[i] = lane_intersections[lane[i], k] if inside else -1
+        out[i] = _area_of(lane[i], s[i], lane_centres_s, lane_intersections, radius, seg)
     return out
+
+
+@njit
+def _control_area_before(lane, s, lane_centres_s, lane_intersections, radius, seg,
+                         limit_s):  # pragma: no cover - compiled
+    area = np.empty(lane.shape[0], np.int64)
+    before = np.empty(lane.shape[0], np.bool_)
+    for i in range(lane.shape[0]):
+        area[i] = _area_of(lane[i], s[i], lane_centres_s, lane_intersections, radius, seg)
+        before[i] = s[i] < limit_s[lane[i]]
+    return area, before
+
+
+def control_area_before(
+    lane: np.ndarray, s: np.ndarray, lane_centres_s: np.ndarray,
+    lane_intersections: np.ndarray, radius: float, seg: float, limit_s: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`control_area` and ``s < limit_s[lane]`` (the cloud's pick population,
+    ``state_graph.cloud_population`` with ``population_limit_s``) in one pass over the
+    points (identical results)."""
+    return _control_area_before(lane, s, lane_centres_s, lane_intersections, float(radius),
+                                float(seg), limit_s)
 
 
 def control_area(

@@ -14,6 +14,7 @@ from mivecc_env.sim.state_graph import (
     build_graphs,
     cloud_graphs,
     cloud_population,
+    population_limit_s,
     select_cloud_decisions,
     select_edge_decisions,
 )
@@ -202,6 +203,30 @@ def test_fused_density_selection_matches_numpy_indicator() -> None:
         for f in ("obs", "mask", "slot", "view_index"):
             assert getattr(fused, f).tobytes() == getattr(given, f).tobytes(), f
     assert picked > 1000
+
+
+def test_control_area_before_matches_the_two_calls() -> None:
+    # one pass for the control area and the cloud's pick population (BatchedMiVeCCEnv)
+    cfg = MiVeCCConfig(rows=1, cols=2, scheme="EEC")
+    sim = Simulator(cfg, batch_size=3, seed=[1, 2, 3], densities=[300.0, 1500.0, 2700.0])
+    checked = past = 0
+    for t in range(400):
+        sim.step()
+        if t % 100 != 99:
+            continue
+        view, net = sim.view, sim.network
+        for population in ("conflict_ahead", "before_last_centre"):
+            limit = population_limit_s(net, population)
+            area, before = graph_kernel.control_area_before(
+                view.lane, view.s, net.lane_centres_s, net.lane_intersections,
+                net.control_radius_m, net.segment_length_m, limit)
+            ref_area = net.control_area(view.lane, view.s)
+            ref_pop = cloud_population(net, view, population)
+            assert area.tobytes() == ref_area.tobytes()
+            assert before.dtype == ref_pop.dtype and before.tobytes() == ref_pop.tobytes()
+            checked += int((area >= 0).sum())
+            past += int((~before).sum())
+    assert checked > 500 and past > 100
 
 
 def test_kernel_overwrites_every_output_element() -> None:
