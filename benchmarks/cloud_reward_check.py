@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from mivecc_agents.evaluation import scheme_overrides
-from mivecc_agents.policies import Policy, constant_policy, pretrained_policies
+from mivecc_agents.policies import Policy, constant_policy, load_policy, pretrained_policies
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.no_data import mark_no_data
 
@@ -82,19 +82,29 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser.add_argument("--densities", type=float, nargs="+", default=[1500.0, 2100.0])
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--constants", type=float, nargs="*", default=list(CONSTANTS_MPS2),
+                        help="constant cloud actions to run [m/s^2]")
     parser.add_argument("--skip", type=int, default=500,
                         help="fill-up steps left out of the mean rewards")
+    parser.add_argument("--cloud", type=Path, default=None,
+                        help="a cloud checkpoint to check instead of the model's shipped one")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = parser.parse_args(argv)
     if not 0 <= args.skip < args.steps:
         parser.error(f"--skip: must be in [0, --steps - 1] = [0, {args.steps - 1}], "
                      f"got {args.skip}")
+    bad = [a for a in args.constants if not -3.0 <= a <= 3.0]
+    if bad:
+        parser.error(f"--constants: each must be in [-3, 3] m/s^2, got {bad}")
     shipped = pretrained_policies(args.model)
     grid = max(args.rows, args.cols)
     variants: list[tuple[str, Policy]] = [
-        (f"constant {a:+g}", constant_policy("cloud", a, grid)) for a in CONSTANTS_MPS2
+        (f"constant {a:+g}", constant_policy("cloud", a, grid)) for a in args.constants
     ]
-    variants.append(("shipped cloud", shipped["cloud"]))
+    if args.cloud is None:
+        variants.append(("shipped cloud", shipped["cloud"]))
+    else:
+        variants.append((f"cloud {args.cloud}", load_policy(args.cloud, expected_kind="cloud")))
     rows = []
     for name, cloud in variants:
         t0 = time.perf_counter()
@@ -111,7 +121,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     lines = [
         f"Command: `python benchmarks/cloud_reward_check.py --model {args.model} --rows "
         f"{args.rows} --cols {args.cols} --densities {' '.join(f'{d:g}' for d in args.densities)}"
-        f" --seeds {' '.join(map(str, args.seeds))} --steps {args.steps} --skip {args.skip}`",
+        f" --seeds {' '.join(map(str, args.seeds))} --steps {args.steps} --skip {args.skip}"
+        f" --constants {' '.join(f'{a:g}' for a in args.constants)}"
+        + (f" --cloud {args.cloud}" if args.cloud else "") + "`",
         "",
         "| cloud | cloud reward per step | edge reward per step | released-style v [m/s] | "
         "avg travel v [m/s] | collisions | mean cloud action [m/s^2] |",
