@@ -23,10 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from mivecc_agents.evaluation import scheme_overrides
+from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.policies import Policy, constant_policy, load_policy, pretrained_policies
-from mivecc_env.batched import BatchedMiVeCCEnv
-from mivecc_env.no_data import mark_no_data
 
 CONSTANTS_MPS2 = (-3.0, 0.0, 1.0, 3.0)
 
@@ -36,41 +34,29 @@ def run_variant(
     steps: int, skip: int, edge: Policy, cloud: Policy,
 ) -> dict[str, Any]:
     """One batch of every (density, seed) pair with the given edge and cloud policies."""
-    pairs = [(float(d), int(s)) for d in densities for s in seeds]
-    b = len(pairs)
-    env = BatchedMiVeCCEnv(
-        batch_size=b, densities=[d for d, _ in pairs], observe={"edge", "cloud"}, rows=rows,
-        cols=cols, density=pairs[0][0], max_steps=steps,
-        **scheme_overrides("EEC", {"model": model}),
-    )
-    a_max = env.config.a_max_mps2
-    step = env.reset(seed=[s for _, s in pairs])
-    cloud_r = edge_r = 0.0
-    action_sum, action_n = 0.0, 0
-    for t in range(steps):
-        e = np.stack([edge(step.edge_obs[i], step.edge_mask[i]) for i in range(b)])
-        c = np.stack([cloud(step.cloud_obs[i][None], step.cloud_mask[i][None])[0]
-                      for i in range(b)])
-        c = np.clip(c.astype(np.float64), -a_max, a_max)
-        real = step.cloud_mask > 0
-        action_sum += float(c[real].sum())
-        action_n += int(real.sum())
-        step = env.step(np.clip(e.astype(np.float64), -a_max, a_max), c)
-        if t >= skip:
-            cloud_r += float(step.cloud_reward.mean())
-            edge_r += float(step.edge_reward.mean())
-    summary = env.summary()
-    per_env = [mark_no_data({k: float(v[j]) for k, v in summary.items()}, env.config)
-               for j in range(b)]
+    sums = {"cloud_reward": 0.0, "edge_reward": 0.0, "action": 0.0, "columns": 0, "t": 0}
+
+    def record(before: Any, _edge: Any, cloud_action: np.ndarray, after: Any) -> None:
+        real = before.cloud_mask > 0
+        sums["action"] += float(cloud_action[real].sum())
+        sums["columns"] += int(real.sum())
+        if sums["t"] >= skip:
+            sums["cloud_reward"] += float(after.cloud_reward.mean())
+            sums["edge_reward"] += float(after.edge_reward.mean())
+        sums["t"] += 1
+
+    results = evaluate_batch("EEC", rows, cols, densities, steps, seeds,
+                             policies={"edge": edge, "cloud": cloud}, progress=False,
+                             warn=False, on_step=record, model=model)
     n = max(steps - skip, 1)
     return {
-        "cloud_reward": cloud_r / n,
-        "edge_reward": edge_r / n,
-        "released_velocity_mps": float(np.mean([r["released_velocity_mps"] for r in per_env])),
+        "cloud_reward": sums["cloud_reward"] / n,
+        "edge_reward": sums["edge_reward"] / n,
+        "released_velocity_mps": float(np.mean([r["released_velocity_mps"] for r in results])),
         "avg_travel_velocity_mps": float(np.mean([r["avg_travel_velocity_mps"]
-                                                  for r in per_env])),
-        "collisions": int(sum(r["collisions"] for r in per_env)),
-        "mean_cloud_action_mps2": action_sum / max(action_n, 1),
+                                                  for r in results])),
+        "collisions": int(sum(r["collisions"] for r in results)),
+        "mean_cloud_action_mps2": sums["action"] / max(sums["columns"], 1),
     }
 
 

@@ -254,6 +254,7 @@ def evaluate_batch(
     policies: Mapping[str, Policy] | None = None,
     progress: bool = True,
     warn: bool = True,
+    on_step: Callable[[Any, np.ndarray | None, np.ndarray | None, Any], None] | None = None,
     **config_overrides: Any,
 ) -> list[dict[str, Any]]:
     """Run every (density, seed) pair of one configuration as one batch of environments.
@@ -263,6 +264,10 @@ def evaluate_batch(
             :func:`evaluate_scheme`.
         densities: one density or several [veh/lane/h].
         seeds: the seeds; each density runs every seed.
+        on_step: called after every step as ``on_step(before, edge, cloud, after)``: the
+            :class:`~mivecc_env.batched.BatchStep` the actions were chosen on, the executed
+            (B, n_edge, K) edge and (B, K) cloud actions [m/s^2] (``None`` where the scheme
+            has none) and the step's result (rewards, next observations).
 
     Returns:
         One result per (density, seed), densities outer and seeds inner, each with the keys of
@@ -327,7 +332,9 @@ def evaluate_batch(
             edge = act(edge_policy, step.edge_obs, step.edge_mask)
         if "cloud" in needed:
             cloud = act(cloud_policy, step.cloud_obs[:, None], step.cloud_mask[:, None])[:, 0]
-        step = env.step(edge, cloud)
+        before, step = step, env.step(edge, cloud)
+        if on_step is not None:
+            on_step(before, edge, cloud, step)
         if bar is not None and (i + 1) % chunk == 0:
             bar.update(chunk)
     wall = time.perf_counter() - t0

@@ -592,9 +592,7 @@ class Simulator:
         )
         self.active.ravel()[view.vehicle[hit]] = False
 
-    def _enter_vehicles(
-        self, now_s: FloatArray, events: StepEvents, s_new: FloatArray | None = None
-    ) -> None:
+    def _enter_vehicles(self, now_s: FloatArray, events: StepEvents, s_new: FloatArray) -> None:
         """Arrivals into the queues, queue heads into the network where the entry is clear.
         ``s_new``: the positions after the step's move in view order (the compiled plan reads
         the vehicles near the entries from the view)."""
@@ -605,7 +603,7 @@ class Simulator:
         clearance = (signals.entry_clearance_m(c) if c.control != "unsignalized"
                      else c.entry_clearance_m)
         view = self._view  # the step's view; s_new: its positions after the move
-        plan = None if s_new is None or not self.active.flags.c_contiguous else (
+        plan = None if not self.active.flags.c_contiguous else (
             step_kernels.entry_plan(self.active.ravel(), view.vehicle, view.env, view.lane,
                                     s_new, queued, clearance))
         if plan is not None:  # compiled: same slots, same order as below
@@ -622,15 +620,11 @@ class Simulator:
         want = queued > 0
         if not want.any():
             return
-        blocked = step_kernels.blocked_entries(
-            self.active, self.lane, self.s, clearance, self.network.n_lanes
-        )
-        if blocked is None:
-            blocked = np.zeros_like(want)
-            near = self.active & (self.s < clearance)
-            if near.any():
-                bb, kk = np.nonzero(near)
-                blocked[bb, self.lane[bb, kk]] = True
+        blocked = np.zeros_like(want)  # the numpy path (no numba)
+        near = self.active & (self.s < clearance)
+        if near.any():
+            bb, kk = np.nonzero(near)
+            blocked[bb, self.lane[bb, kk]] = True
         go = want & ~blocked
         env, lane = np.nonzero(go)
         if env.size == 0:

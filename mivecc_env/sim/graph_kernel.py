@@ -25,16 +25,14 @@ import numpy as np
 
 from mivecc_env.sim._numba import HAVE_NUMBA, njit
 
-__all__ = ["HAVE_NUMBA", "build", "select_capped_desc", "select_nodes", "select_per_group"]
+__all__ = [
+    "HAVE_NUMBA", "build", "control_area_before", "select_capped_desc", "select_cloud_di",
+    "select_nodes", "select_per_group",
+]
 
 #: Index cast for the hot loops: numba wraps a negative signed index around (a sign test per
 #: access); an unsigned index skips it. Only for indices known to be >= 0.
 U = np.uint64
-
-
-@njit
-def _valid(pos, use_area, centre, radius):  # pragma: no cover - compiled
-    return (not use_area) or abs(pos - centre) <= radius
 
 
 @njit
@@ -51,12 +49,6 @@ def _channels(velocity, accel, v_lo, v_mul, a_mul):  # pragma: no cover - compil
         va[i, 1] = _channel(accel[i] * a_mul)
     return va
 
-
-@njit
-def _write(cells, cell, rel, vehicle, va, inv_scale):  # pragma: no cover - compiled
-    cells[cell, 0] = _channel(rel * inv_scale)
-    cells[cell, 1] = va[vehicle, 0]
-    cells[cell, 2] = va[vehicle, 1]
 
 
 @njit
@@ -482,22 +474,14 @@ def _density_indicator(own_point, run_start, run_end, point_pos, n):  # pragma: 
 def _select_cloud_di(env, eligible, own_point, run_start, run_end, point_pos, n, cap,
                      k):  # pragma: no cover - compiled
     """:func:`_select_capped_desc` of the density indicator (computed here, only for the
-    eligible vehicles: the others are never ranked)."""
+    eligible vehicles: the others are never ranked, so their 0 is never read)."""
     m = env.shape[0]
-    group = np.empty(m, np.int64)
-    key = np.zeros(m, np.float64)
+    di = np.zeros(m, np.float64)
     use = eligible.shape[0] > 0
-    top = -1
     for i in range(m):
         if not use or eligible[i]:
-            group[i] = env[i]
-            x = _di_of(own_point[i], run_start, run_end, point_pos, n)
-            key[i] = -(x if (x < cap or x != x) else cap)
-        else:
-            group[i] = -1
-        if env[i] > top:
-            top = env[i]
-    return _select(group, key, top + 1 if m else 0, k)
+            di[i] = _di_of(own_point[i], run_start, run_end, point_pos, n)
+    return _select_capped_desc(env, eligible, di, cap, k)
 
 
 def select_cloud_di(

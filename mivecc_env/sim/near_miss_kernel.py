@@ -1,8 +1,9 @@
 """Compiled (numba) kernel of :meth:`mivecc_env.sim.near_miss.NearMissStats.record_step`.
 
-One pass over the vehicles of a step updates the TTC and own-lane gap accumulators, a second
-over the vehicles near an intersection centre collects the reach / leave events and the
-crossing-pair distances; all accumulators are updated in place. It uses the numpy reference's
+A pass over the vehicles of a step lists the closing-in and near-centre vehicles and updates
+the own-lane gap accumulators; then the TTC divisions and histogram, the reach / leave events
+of the vehicles near an intersection centre and the crossing-pair distances follow, each over
+its list; all accumulators are updated in place. It uses the numpy reference's
 own float operations (same operands, same order, no fast-math), so the accumulators are
 bit-identical (``tests/sim/test_near_miss.py`` and ``test_near_miss_long.py`` compare both
 paths, the latter at every step of long busy runs):
@@ -19,8 +20,9 @@ paths, the latter at every step of long busy runs):
   cell is ``inf``, and so is any ``hypot`` with it): each written cell is listed once, the
   points with both cells written are read, and the listed cells cleared.
 
-Scratch buffers (:class:`NearMissScratch`) are owned by the caller and reused across steps: no
-array is allocated per call. Returns False without numba (the caller then runs the reference).
+Scratch buffers (:class:`NearMissScratch`) are owned by the caller and reused across steps;
+only a point with several events in one step allocates (the keys of their stable sort).
+Returns False without numba (the caller then runs the reference).
 """
 
 from __future__ import annotations

@@ -4,7 +4,6 @@
   every vehicle (reference: ``Simulator._safety_inputs_reference``);
 * :func:`collision_pairs` - vehicle pairs closer than a vehicle length after a move
   (reference: ``mivecc_env.sim.core.collision_pairs_reference``);
-* :func:`blocked_entries` - entry lanes with a vehicle closer than the clearance to the entry;
 * :func:`safety_fast` - the inputs and the safety value in two passes around numpy's own logs
   (reference: ``safety_value`` of the reference inputs);
 * :func:`move` - end rule, fusion and bounded motion of the plain unsignalized model, state
@@ -296,27 +295,6 @@ def collision_pairs(
         return None
     return _collision_pairs(leader, s_new, exited, lane, env, lane_cp, lane_cp_s, int(n_cp),
                             float(seg), float(off), float(length))
-
-
-@njit
-def _blocked_entries(active, lane, s, clearance, n_lanes):  # pragma: no cover
-    bsz, cap = active.shape
-    blocked = np.zeros((bsz, n_lanes), np.bool_)
-    for b in range(bsz):
-        for k in range(cap):
-            if active[b, k] and s[b, k] < clearance:
-                blocked[b, lane[b, k]] = True
-    return blocked
-
-
-def blocked_entries(
-    active: NDArray[np.bool_], lane: NDArray[np.int64], s: NDArray[np.float64],
-    clearance_m: float, n_lanes: int,
-) -> NDArray[np.bool_] | None:
-    """(B, n_lanes) True where a vehicle of that entry lane is closer than ``clearance_m``."""
-    if not HAVE_NUMBA:
-        return None
-    return _blocked_entries(active, lane, s, float(clearance_m), int(n_lanes))
 
 
 @njit

@@ -77,3 +77,23 @@ def test_rules_study_batch_equals_single_runs() -> None:
             sim.step()
         assert run == episode_summary(sim)  # the unbatched simulator, seeded s
     assert runs[0] != runs[1]  # different seeds, different traffic
+
+
+def test_on_step_sees_every_step_with_its_actions() -> None:
+    seen: list[tuple[bool, tuple[int, ...], float]] = []
+
+    def record(before, edge, cloud, after) -> None:
+        seen.append((edge is None, cloud.shape, float(after.cloud_reward.sum())))
+
+    from mivecc_agents.policies import constant_policy
+
+    evaluate_batch("EEC", 1, 1, [900.0], 50, [0, 1], progress=False, warn=False,
+                   policies={"cloud": constant_policy("cloud", 1.0, 1),
+                             "edge": constant_policy("edge", 0.0, 1)},
+                   on_step=record)
+    assert len(seen) == 50
+    assert all(not no_edge and shape[0] == 2 for no_edge, shape, _ in seen)
+    e_steps: list[bool] = []
+    evaluate_batch("E", 1, 1, 900.0, 20, [0], progress=False, warn=False,
+                   on_step=lambda b, e, c, a: e_steps.append(e is None and c is None))
+    assert e_steps == [True] * 20

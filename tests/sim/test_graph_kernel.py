@@ -78,21 +78,25 @@ def test_kernel_matches_numpy_with_tied_distances() -> None:
     assert both_paths(sim, tied, cfg) > 100
 
 
+def _assert_stable_top_k(group: np.ndarray, key: np.ndarray, n_groups: int, k: int) -> None:
+    """``select_per_group`` equals the first k of each group of the stable (group, key) sort."""
+    idx, grp, col = graph_kernel.select_per_group(group, key, n_groups, k)
+    inside = np.flatnonzero(group >= 0)
+    order = inside[np.lexsort((key[inside], group[inside]))]
+    ref_group = group[order]
+    rank = np.arange(order.size) - np.searchsorted(ref_group, ref_group)
+    keep = rank < k
+    np.testing.assert_array_equal(idx, order[keep])
+    np.testing.assert_array_equal(grp, ref_group[keep])
+    np.testing.assert_array_equal(col, rank[keep])
+
+
 def test_select_per_group_is_the_stable_two_key_sort() -> None:
     rng = np.random.default_rng(0)
     n, n_groups, k = 5000, 40, 7
     group = rng.integers(-1, n_groups, n)
     key = np.round(rng.normal(size=n), 1)  # many ties
-    idx, grp, col = graph_kernel.select_per_group(group, key, n_groups, k)
-    inside = np.flatnonzero(group >= 0)
-    order = inside[np.lexsort((key[inside], group[inside]))]
-    ref_group = group[order]
-    first = np.searchsorted(ref_group, ref_group)
-    rank = np.arange(order.size) - first
-    keep = rank < k
-    np.testing.assert_array_equal(idx, order[keep])
-    np.testing.assert_array_equal(grp, ref_group[keep])
-    np.testing.assert_array_equal(col, rank[keep])
+    _assert_stable_top_k(group, key, n_groups, k)
 
 
 def test_select_per_group_with_nan_and_signed_zero_keys() -> None:
@@ -105,15 +109,7 @@ def test_select_per_group_with_nan_and_signed_zero_keys() -> None:
         key = np.round(rng.normal(size=n), 1)
         key[rng.random(n) < 0.05] = np.nan
         key[rng.random(n) < 0.05] = -0.0
-        idx, grp, col = graph_kernel.select_per_group(group, key, n_groups, k)
-        inside = np.flatnonzero(group >= 0)
-        order = inside[np.lexsort((key[inside], group[inside]))]
-        ref_group = group[order]
-        rank = np.arange(order.size) - np.searchsorted(ref_group, ref_group)
-        keep = rank < k
-        np.testing.assert_array_equal(idx, order[keep])
-        np.testing.assert_array_equal(grp, ref_group[keep])
-        np.testing.assert_array_equal(col, rank[keep])
+        _assert_stable_top_k(group, key, n_groups, k)
 
 
 def test_fused_selections_match_select_per_group() -> None:
@@ -313,12 +309,4 @@ def test_select_per_group_large_groups_with_infinities_and_one_value() -> None:
         if trial % 5 == 0:
             key[:] = 0.5
         key[rng.random(n) < 0.03] = np.nan
-        idx, grp, col = graph_kernel.select_per_group(group, key, n_groups, k)
-        inside = np.flatnonzero(group >= 0)
-        order = inside[np.lexsort((key[inside], group[inside]))]
-        ref_group = group[order]
-        rank = np.arange(order.size) - np.searchsorted(ref_group, ref_group)
-        keep = rank < k
-        np.testing.assert_array_equal(idx, order[keep])
-        np.testing.assert_array_equal(grp, ref_group[keep])
-        np.testing.assert_array_equal(col, rank[keep])
+        _assert_stable_top_k(group, key, n_groups, k)

@@ -144,13 +144,6 @@ def test_kernels_match_references_on_crowded_states(seed: int) -> None:
         assert want.shape[0] > 0
         np.testing.assert_array_equal(got, want)
 
-        blocked = step_kernels.blocked_entries(sim.active, sim.lane, sim.s, 7.0,
-                                               sim.network.n_lanes)
-        expect = np.zeros_like(blocked)
-        bb, kk = np.nonzero(sim.active & (sim.s < 7.0))
-        expect[bb, sim.lane[bb, kk]] = True
-        np.testing.assert_array_equal(blocked, expect)
-
 
 @pytest.mark.parametrize("seed", range(4))
 @pytest.mark.parametrize("source", ["ego", "front"])

@@ -17,7 +17,11 @@ import pytest
 from mivecc_env.sim import view_kernel
 from mivecc_env.sim.network import GridNetwork, build_grid
 from mivecc_env.sim.view_kernel import ViewWorkspace
-from mivecc_env.sim.virtual_lane import build_view, build_view_reference
+from mivecc_env.sim.virtual_lane import (
+    POSITION_RESOLUTION_M,
+    build_view,
+    build_view_reference,
+)
 
 pytestmark = pytest.mark.skipif(not view_kernel.HAVE_NUMBA, reason="numba not installed")
 
@@ -63,6 +67,11 @@ def test_compiled_view_equals_reference(kind: str, batch: int) -> None:
         view = build_view(net, window, clear, active, lane, s)
         _assert_same_view(view, build_view_reference(net, window, clear, active, lane, s))
         assert view.n_vehicles == active.sum()
+        if view_kernel.HAVE_NUMBA:  # the compiled path ran, not the reference fallback
+            candidate = window + clear + 2.0 * net.lane_offset_m < net.segment_length_m
+            assert view_kernel.build_view_fast(net, window, clear, active, lane, s,
+                                               1.0 / POSITION_RESOLUTION_M,
+                                               candidate) is not None
 
 
 def test_whole_lane_in_one_bucket() -> None:
