@@ -194,13 +194,16 @@ def format_table(results: list[dict[str, Any]], mean: dict[str, Any] | None = No
 
 
 def evaluation_policies(
-    args: argparse.Namespace, config: MiVeCCConfig | None = None
+    args: argparse.Namespace, config: MiVeCCConfig | None = None,
+    overrides: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Coordinator policies for ``evaluate``: given checkpoints, else the shipped ones of the
     config's ``model`` (``pretrained/`` for ``paper``, ``pretrained/released/``).
 
     With ``config`` (the evaluation's), each policy's training config is compared with it: a
-    K that does not fit is an error, other differences are warned about on stderr.
+    K that does not fit is an error, other differences are warned about on stderr. With
+    ``overrides`` (the evaluation's config overrides) as well, a learned cloud's training
+    ``cloud_period`` is adopted first (:func:`adopt_cloud_period`).
     """
     from mivecc_agents.checkpoints import CheckpointError
     from mivecc_agents.policies import check_policy_config, load_policy, pretrained_path
@@ -209,20 +212,27 @@ def evaluation_policies(
     paths = {kind: None if args.no_pretrained else pretrained_path(kind, model)
              for kind in ("edge", "cloud")}
     given = {"edge": args.edge_checkpoint, "cloud": args.cloud_checkpoint}
-    policies = {}
+    policies, options = {}, {}
     for kind in ("edge", "cloud"):
-        path, option = given[kind], f"--{kind}-checkpoint"
+        path, options[kind] = given[kind], f"--{kind}-checkpoint"
         if path is None:
-            path, option = paths[kind], f"shipped {kind} policy"
+            path, options[kind] = paths[kind], f"shipped {kind} policy"
         if path is None:
             continue
         try:
             policies[kind] = load_policy(path, expected_kind=kind)
-            if config is not None:
-                for message in check_policy_config(policies[kind], config):
-                    print(f"{PROG}: warning: {option}: {message}", file=sys.stderr)
         except CheckpointError as exc:  # a user error: exit 2 with the message
-            raise ConfigError(f"{option}: {exc}") from exc
+            raise ConfigError(f"{options[kind]}: {exc}") from exc
+    if config is not None:
+        if overrides is not None and adopt_cloud_period(config.scheme, policies, overrides):
+            config = _config_from(config, cloud_period=overrides["cloud_period"])
+        for kind, policy in policies.items():
+            try:
+                messages = check_policy_config(policy, config)
+            except CheckpointError as exc:
+                raise ConfigError(f"{options[kind]}: {exc}") from exc
+            for message in messages:
+                print(f"{PROG}: warning: {options[kind]}: {message}", file=sys.stderr)
     return policies
 
 
@@ -264,6 +274,21 @@ def _write_out(option: str, path: Path, text: str) -> None:
         raise ConfigError(f"{option}: cannot write {path}: {exc.strerror or exc}") from exc
 
 
+def adopt_cloud_period(scheme: str, policies: dict[str, Any], overrides: dict[str, Any]) -> bool:
+    """Run a learned cloud at the ``cloud_period`` it was trained with (recorded in its
+    checkpoint's config) unless the overrides (``--set cloud_period=...``) name one: adds it
+    to ``overrides`` and returns True if it is not the default 1. Only scheme EEC uses the
+    cloud."""
+    cloud = policies.get("cloud")
+    if scheme != "EEC" or cloud is None or "cloud_period" in overrides:
+        return False
+    period = int((getattr(cloud, "config", None) or {}).get("cloud_period", 1))
+    if period == 1:
+        return False
+    overrides["cloud_period"] = period
+    return True
+
+
 def _evaluation_config(args: argparse.Namespace, overrides: dict[str, Any]) -> MiVeCCConfig:
     scheme = {"scheme": "E", "control": "signalized"} if args.scheme == "signalized" else {
         "scheme": args.scheme}
@@ -280,7 +305,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.scheme in ("EE", "EEC"):
         config = _evaluation_config(args, overrides)
         set_inference_threads(threads)
-        policies = evaluation_policies(args, config)
+        policies = evaluation_policies(args, config, overrides)
     if len(seeds) == 1:
         results = [evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                                    seeds[0], policies=policies, progress=not args.no_progress,

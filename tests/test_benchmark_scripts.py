@@ -12,6 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import cloud_critic_check
 import cloud_reward_check
 import comparison
 import paper_table
@@ -59,6 +60,28 @@ def test_cloud_reward_check_ranks_constant_clouds(tmp_path: Path) -> None:
     assert by_name["constant -3"]["cloud_reward"] < by_name["constant +3"]["cloud_reward"]
     text = (tmp_path / "cloud_reward_check_released.md").read_text()
     assert text.count("| constant") == 4 and "| shipped cloud |" in text
+
+
+def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
+    rows = cloud_critic_check.main(["--model", "released", "--rows", "1", "--cols", "1",
+                                    "--densities", "1500", "--seeds", "0", "1", "--steps", "300",
+                                    "--skip", "100", "--every", "20", "--out", str(tmp_path)])
+    by_probe = {r["probe"]: r for r in rows}
+    assert {"a + 1", "a - 1", "constant -3", "constant +0", "constant +3"} <= set(by_probe)
+    assert all(0.0 <= r["share_positive"] <= 1.0 for r in rows)
+    text = (tmp_path / "cloud_critic_check_released.md").read_text()
+    assert "20 cloud states (cloud_period 1) of the shipped released-model cloud" in text  # 2 environments x (300 - 100) / 20 kept steps
+    # the gaps are real critic differences: a tiny shift moves Q by about slope x shift
+    from mivecc_agents.policies import pretrained_path
+
+    obs, mask = cloud_critic_check.collect_states("released", 1, 1, [1500.0], [0], 200, 100,
+                                                  25, pretrained_path("cloud", "released"), 1)
+    assert obs.shape[1:] == (60, 60, 3) and len(obs) == len(mask) == 4
+    h = 1e-3
+    fine = {r["probe"]: r["mean_gap"] for r in cloud_critic_check.critic_gaps(
+        pretrained_path("cloud", "released"), obs, mask, h, [])}
+    slope = fine["slope dQ/dc of a + c*1 [1/(m/s^2)]"]
+    assert fine[f"a + {h:g}"] == pytest.approx(slope * h, rel=0.2, abs=1e-5)
 
 
 @pytest.mark.parametrize("new, old, expected", [(11.0, 10.0, 10.0), (9.0, 10.0, -10.0)])

@@ -97,3 +97,30 @@ def test_on_step_sees_every_step_with_its_actions() -> None:
     evaluate_batch("E", 1, 1, 900.0, 20, [0], progress=False, warn=False,
                    on_step=lambda b, e, c, a: e_steps.append(e is None and c is None))
     assert e_steps == [True] * 20
+
+
+def test_cli_runs_a_learned_cloud_at_its_training_period(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    from mivecc_agents.checkpoints import load_checkpoint, save_checkpoint
+    from mivecc_agents.cli import main
+    from mivecc_agents.policies import pretrained_path
+
+    data = load_checkpoint(pretrained_path("cloud", "released"))
+    data["config"] = {**data["config"], "cloud_period": 10}
+    path = save_checkpoint(tmp_path / "cloud_p10.pt", data)
+    base = ["evaluate", "--scheme", "EEC", "--rows", "1", "--cols", "1", "--steps", "40",
+            "--json", "--no-progress", "--cloud-checkpoint", str(path), "--set", "model=released"]
+    assert main(base) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["cloud_period"] == 10 and "cloud_period" not in out.err
+    # an explicit period wins, with the mismatch warned about
+    assert main([*base, "cloud_period=1"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["cloud_period"] == 1
+    assert "trained deciding every 10 steps" in out.err
+    # the period only matters to the cloud: EE runs as asked
+    assert main([*base[:2], "EE", *base[3:]]) == 0
+    assert json.loads(capsys.readouterr().out)["cloud_period"] == 1

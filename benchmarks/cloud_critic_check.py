@@ -1,0 +1,183 @@
+"""Does a trained cloud critic know that its actor could do better?
+
+The stage-II reward ranks constant clouds like the metric does and the constant +3 m/s^2
+cloud is best (``benchmarks/cloud_reward_check.py``), yet the learned clouds act far below
+it. This check asks the checkpoint's own critic. It runs MiVeCC-EEC with the model's shipped
+edge and the checkpoint's cloud (every (density, seed) pair as one batch), keeps the cloud's
+observations every ``--every`` steps after ``--skip`` fill-up steps, and evaluates the critic
+in those states at:
+
+* the actor's action ``a``;
+* ``a`` shifted by +-``--shift`` m/s^2 in every real column (clamped to [-3, 3]);
+* constant actions (``--constants``).
+
+For each it prints the mean of ``Q(s, x) - Q(s, a)`` and the share of states where it is
+positive. A critic whose ``Q(s, +3) - Q(s, a)`` is positive in most states points its actor
+towards +3 (the actor's step size then limits); one near zero or mixed has not resolved the
+effect of the cloud action (the critic limits). The deterministic policy gradient the actor
+follows is the slope ``dQ/da``; its component along "all columns up" is printed too.
+
+Usage (about 1 min on an idle 2-core machine):
+    python benchmarks/cloud_critic_check.py --model released \
+        --cloud mivecc_agents/pretrained/released/cloud.pt --out benchmarks/results
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from mivecc_agents.checkpoints import load_checkpoint, network_variant
+from mivecc_agents.evaluation import evaluate_batch
+from mivecc_agents.networks import make_critic_net
+from mivecc_agents.policies import load_policy, pretrained_policies
+
+ACTION_BOUND_MPS2 = 3.0
+
+
+def collect_states(
+    model: str, rows: int, cols: int, densities: Sequence[float], seeds: Sequence[int],
+    steps: int, skip: int, every: int, cloud_path: Path, cloud_period: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cloud observations (n, K, K, 3) and masks (n, K) of every environment, kept every
+    ``every`` steps from step ``skip`` on, under the shipped edge and the checkpoint's cloud."""
+    shipped = pretrained_policies(model)
+    cloud = load_policy(cloud_path, expected_kind="cloud")
+    obs: list[np.ndarray] = []
+    masks: list[np.ndarray] = []
+    t = [0]
+
+    def record(before: Any, _edge: Any, _cloud: Any, _after: Any) -> None:
+        if t[0] >= skip and (t[0] - skip) % every == 0:
+            real = before.cloud_mask.sum(axis=1) > 0
+            obs.append(np.array(before.cloud_obs[real], dtype=np.float32))
+            masks.append(np.array(before.cloud_mask[real], dtype=np.float32))
+        t[0] += 1
+
+    overrides = {"cloud_period": cloud_period} if cloud_period != 1 else {}
+    evaluate_batch("EEC", rows, cols, densities, steps, seeds,
+                   policies={"edge": shipped["edge"], "cloud": cloud}, progress=False,
+                   warn=False, on_step=record, model=model, **overrides)
+    return np.concatenate(obs), np.concatenate(masks)
+
+
+def critic_gaps(
+    cloud_path: Path, obs: np.ndarray, mask: np.ndarray, shift: float,
+    constants: Sequence[float],
+) -> list[dict[str, Any]]:
+    """``Q(s, x) - Q(s, a)`` statistics for each probe action ``x`` (see the module doc)."""
+    ckpt = load_checkpoint(cloud_path, expected_kind="cloud")
+    variant = network_variant(ckpt)
+    with torch.random.fork_rng(devices=[]):
+        critic = make_critic_net("cloud", variant=variant)
+    critic.load_state_dict(ckpt["critic"])
+    critic.eval()
+    actor = load_policy(cloud_path, expected_kind="cloud")
+    o = torch.as_tensor(obs)
+    m = torch.as_tensor(mask)
+    a = torch.as_tensor(actor(obs, mask))
+    bound = ACTION_BOUND_MPS2
+    probes = [(f"a {'+' if s > 0 else '-'} {abs(s):g}", (a + s).clamp(-bound, bound))
+              for s in (shift, -shift)]
+    probes += [(f"constant {c:+g}", torch.full_like(a, c)) for c in constants]
+    rows = []
+    with torch.no_grad():
+        q_a = critic(o, a, m)[..., 0]
+        for name, x in probes:
+            gap = (critic(o, x * m, m)[..., 0] - q_a).numpy()
+            rows.append({"probe": name, "mean_gap": float(gap.mean()),
+                         "share_positive": float((gap > 0).mean())})
+    a_var = a.clone().requires_grad_(True)
+    q = critic(o, a_var, m)[..., 0].sum()
+    (grad,) = torch.autograd.grad(q, a_var)
+    slope_up = (grad * m).sum(dim=-1).numpy()  # dQ/dc of a + c (all real columns)
+    rows.append({"probe": "slope dQ/dc of a + c*1 [1/(m/s^2)]", "mean_gap": float(slope_up.mean()),
+                 "share_positive": float((slope_up > 0).mean())})
+    real = mask > 0
+    rows.append({"probe": "actor: mean action [m/s^2]", "mean_gap": float(a.numpy()[real].mean()),
+                 "share_positive": float((a.numpy()[real] > 0).mean())})
+    rows.append({"probe": "critic: mean Q(s, a)", "mean_gap": float(q_a.mean()),
+                 "share_positive": float((q_a > 0).float().mean())})
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--model", choices=("paper", "released"), default="released")
+    parser.add_argument("--cloud", type=Path, default=None,
+                        help="cloud checkpoint (actor and critic); default: the model's shipped")
+    parser.add_argument("--rows", type=int, default=3)
+    parser.add_argument("--cols", type=int, default=3)
+    parser.add_argument("--densities", type=float, nargs="+", default=[1500.0, 2100.0])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--skip", type=int, default=500,
+                        help="fill-up steps before states are kept")
+    parser.add_argument("--every", type=int, default=10, help="keep a state every N steps")
+    parser.add_argument("--shift", type=float, default=1.0,
+                        help="shift of the actor's action in every column [m/s^2]")
+    parser.add_argument("--constants", type=float, nargs="*", default=[-3.0, 0.0, 3.0],
+                        help="constant probe actions [m/s^2]")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
+    args = parser.parse_args(argv)
+    if not 0 <= args.skip < args.steps:
+        parser.error(f"--skip: must be in [0, --steps - 1] = [0, {args.steps - 1}], "
+                     f"got {args.skip}")
+    if args.every < 1:
+        parser.error(f"--every: must be >= 1, got {args.every}")
+    if not 0 < args.shift <= 2 * ACTION_BOUND_MPS2:
+        parser.error(f"--shift: must be in (0, 6] m/s^2, got {args.shift}")
+    bad = [c for c in args.constants if not -3.0 <= c <= 3.0]
+    if bad:
+        parser.error(f"--constants: each must be in [-3, 3] m/s^2, got {bad}")
+    cloud = args.cloud
+    if cloud is None:
+        from mivecc_agents.policies import pretrained_path
+        cloud = pretrained_path("cloud", args.model)
+        if cloud is None:
+            parser.error(f"--cloud: no shipped cloud for model {args.model!r}; name a checkpoint")
+    period = int(load_checkpoint(cloud, expected_kind="cloud").get("config", {})
+                 .get("cloud_period", 1))
+    torch.set_num_threads(1)
+    t0 = time.perf_counter()
+    obs, mask = collect_states(args.model, args.rows, args.cols, args.densities, args.seeds,
+                               args.steps, args.skip, args.every, cloud, period)
+    rows = critic_gaps(cloud, obs, mask, args.shift, args.constants)
+    print(f"{len(obs)} states of {cloud} (cloud_period {period}), "
+          f"{time.perf_counter() - t0:.0f} s")
+    for r in rows:
+        print(f"  {r['probe']:38s} mean {r['mean_gap']:+.5f}  positive in "
+              f"{100 * r['share_positive']:.0f} %")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / f"cloud_critic_check_{args.model}.md"
+    lines = [
+        f"Command: `python benchmarks/cloud_critic_check.py --model {args.model}"
+        + (f" --cloud {args.cloud}" if args.cloud is not None else "")
+        + f" --rows {args.rows} --cols {args.cols} --densities "
+        f"{' '.join(f'{d:g}' for d in args.densities)} --seeds "
+        f"{' '.join(map(str, args.seeds))} --steps {args.steps} --skip {args.skip} --every "
+        f"{args.every} --shift {args.shift:g} --constants "
+        f"{' '.join(f'{c:g}' for c in args.constants)}`",
+        "",
+        f"{len(obs)} cloud states (cloud_period {period}) of "
+        + (f"`{args.cloud}`." if args.cloud is not None else
+           f"the shipped {args.model}-model cloud."),
+        "",
+        "| probe x | mean Q(s, x) - Q(s, a) (or the value named) | share of states > 0 |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {r['probe']} | {r['mean_gap']:+.5f} | {100 * r['share_positive']:.0f} % |"
+              for r in rows]
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()
