@@ -52,8 +52,8 @@ COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"),
                ("EE+3", "E"), ("EEC+3", "EE"))
 
 
-def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None, str]
-         ) -> list[dict[str, Any]]:
+def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None, str,
+                    int | None]) -> list[dict[str, Any]]:
     """All densities and seeds of one (scheme, grid) as one batch of environments."""
     import os
 
@@ -62,7 +62,7 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     from mivecc_agents.policies import constant_policy, load_policy, pretrained_policies
     from mivecc_env.config import MiVeCCConfig
 
-    scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model = job
+    scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period = job
     policies = pretrained_policies(model)
     if edge_path:
         policies["edge"] = load_policy(edge_path, expected_kind="edge")
@@ -73,9 +73,14 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
         run_scheme, kind = CEILINGS[scheme]
         k = getattr(MiVeCCConfig(), f"k_{kind}")
         policies[kind] = constant_policy(kind, 3.0, k)
-    # a learned cloud decides at the period it was trained with (cloud_period)
+    # a learned cloud decides at the period it was trained with (cloud_period), the constant
+    # cloud of EEC+3 every step, unless --cloud-period names the period of both
     period = getattr(policies.get("cloud"), "config", {}).get("cloud_period", 1)
-    extra = {"cloud_period": period} if run_scheme == "EEC" and scheme not in CEILINGS else {}
+    if scheme in CEILINGS:
+        period = 1
+    if cloud_period is not None:
+        period = cloud_period
+    extra = {"cloud_period": period} if run_scheme == "EEC" else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
                          progress=False, warn=False, model=model, **extra)
     for row in out:
@@ -282,19 +287,24 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser.add_argument("--cloud", default=None, help="cloud checkpoint (default: shipped)")
     parser.add_argument("--model", choices=("paper", "released"), default="paper",
                         help="env model; the shipped policies of that model are used")
+    parser.add_argument("--cloud-period", type=int, default=None,
+                        help="steps between cloud decisions of EEC and EEC+3 (default: a "
+                        "learned cloud's training period; EEC+3 every step)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
     parser.add_argument("--from-csv", type=Path, nargs="+", default=None,
                         help="build the tables from earlier runs' paper_table.csv files "
                         "(e.g. one run per scheme) instead of running episodes")
     args = parser.parse_args(argv)
+    if args.cloud_period is not None and not 1 <= args.cloud_period <= 1000:
+        parser.error(f"--cloud-period: must be in [1, 1000] steps, got {args.cloud_period}")
 
     jobs = []  # one batch (all densities x seeds) per grid and scheme
     for grid in args.grids:
         r, c = (int(x) for x in grid.split("x"))
         for scheme in args.schemes:
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
-                         args.edge, args.cloud, args.model))
+                         args.edge, args.cloud, args.model, args.cloud_period))
     if args.from_csv:
         rows = [row for path in args.from_csv for row in _read_csv(path)]
     elif args.workers > 1:

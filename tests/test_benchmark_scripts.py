@@ -62,6 +62,19 @@ def test_cloud_reward_check_ranks_constant_clouds(tmp_path: Path) -> None:
     assert text.count("| constant") == 4 and "| shipped cloud |" in text
 
 
+def test_paper_table_cloud_period_sets_both_clouds(tmp_path: Path) -> None:
+    out = paper_table.main(["--grids", "1x1", "--densities", "1500", "--schemes", "EEC",
+                            "EEC+3", "--seeds", "0", "--steps", "200", "--workers", "1",
+                            "--cloud-period", "10", "--out", str(tmp_path)])
+    with open(out / "paper_table.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted(r["scheme"] for r in rows) == ["EEC", "EEC+3"]
+    assert all(r["cloud_period"] == "10" for r in rows)
+    with pytest.raises(SystemExit) as exc:
+        paper_table.main(["--cloud-period", "0", "--out", str(tmp_path)])
+    assert exc.value.code == 2
+
+
 def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     rows = cloud_critic_check.main(["--model", "released", "--rows", "1", "--cols", "1",
                                     "--densities", "1500", "--seeds", "0", "1", "--steps", "300",
@@ -70,7 +83,8 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     assert {"a + 1", "a - 1", "constant -3", "constant +0", "constant +3"} <= set(by_probe)
     assert all(0.0 <= r["share_positive"] <= 1.0 for r in rows)
     text = (tmp_path / "cloud_critic_check_released.md").read_text()
-    assert "20 cloud states (cloud_period 1) of the shipped released-model cloud" in text  # 2 environments x (300 - 100) / 20 kept steps
+    # 2 environments x (300 - 100) / 20 kept steps
+    assert "20 cloud states (cloud_period 1) of the shipped released-model cloud" in text
     # the gaps are real critic differences: a tiny shift moves Q by about slope x shift
     from mivecc_agents.policies import pretrained_path
 
