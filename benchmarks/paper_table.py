@@ -101,6 +101,25 @@ def _read_csv(path: Path) -> list[dict[str, Any]]:
         return [{k: parse(v) for k, v in row.items()} for row in csv.DictReader(fh)]
 
 
+#: What identifies one run of the table (a later CSV's run replaces an earlier one's).
+RUN_KEY = ("rows", "cols", "scheme", "density", "seed")
+
+
+def merge_runs(files: Sequence[list[dict[str, Any]]]) -> list[dict[str, Any]]:
+    """The runs of several CSV files, a later file's run replacing an earlier one with the same
+    :data:`RUN_KEY` (in the earlier one's place); runs of one file are all kept."""
+    merged: dict[tuple[Any, ...], dict[str, Any]] = {}
+    for runs in files:
+        fresh: dict[tuple[Any, ...], dict[str, Any]] = {}
+        for row in runs:
+            key = tuple(row.get(k) for k in RUN_KEY)
+            if key in fresh:  # the same key twice in one file: keep both
+                key = (*key, len(merged) + len(fresh))
+            fresh[key] = row
+        merged.update(fresh)
+    return list(merged.values())
+
+
 def improvement(new: float, old: float) -> float:
     """Relative improvement of ``new`` over ``old`` [%]."""
     return 100.0 * (new - old) / old if old > 0 else float("nan")
@@ -294,7 +313,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
     parser.add_argument("--from-csv", type=Path, nargs="+", default=None,
                         help="build the tables from earlier runs' paper_table.csv files "
-                        "(e.g. one run per scheme) instead of running episodes")
+                        "(e.g. one run per scheme) instead of running episodes; a run of a "
+                        "later file replaces one of an earlier file with the same grid, "
+                        "scheme, density and seed")
     args = parser.parse_args(argv)
     if args.cloud_period is not None and not 1 <= args.cloud_period <= 1000:
         parser.error(f"--cloud-period: must be in [1, 1000] steps, got {args.cloud_period}")
@@ -306,7 +327,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
                          args.edge, args.cloud, args.model, args.cloud_period))
     if args.from_csv:
-        rows = [row for path in args.from_csv for row in _read_csv(path)]
+        rows = merge_runs([_read_csv(path) for path in args.from_csv])
     elif args.workers > 1:
         with mp.get_context("spawn").Pool(args.workers) as pool:
             batches = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="batches"))

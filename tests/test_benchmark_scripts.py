@@ -49,6 +49,20 @@ def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
     assert "E released-style v [m/s]" in text and "| EE | 1500 |" in text
 
 
+def test_paper_table_later_csv_replaces_the_same_runs() -> None:
+    def run(scheme: str, seed: int, v: float) -> dict:
+        return {"rows": 3, "cols": 3, "scheme": scheme, "density": 900, "seed": seed,
+                "avg_travel_velocity_mps": v}
+
+    old = [run("E", 0, 12.0), run("EEC", 0, 12.1), run("EEC", 1, 12.2)]
+    new = [run("EEC", 0, 12.5)]
+    merged = paper_table.merge_runs([old, new])
+    assert [(r["scheme"], r["seed"], r["avg_travel_velocity_mps"]) for r in merged] == [
+        ("E", 0, 12.0), ("EEC", 0, 12.5), ("EEC", 1, 12.2)]
+    # one file's repeated runs are all kept (nothing to replace within a file)
+    assert len(paper_table.merge_runs([old + old])) == 6
+
+
 def test_cloud_reward_check_ranks_constant_clouds(tmp_path: Path) -> None:
     rows = cloud_reward_check.main(["--model", "released", "--rows", "1", "--cols", "1",
                                     "--densities", "1500", "--seeds", "0", "--steps", "400",
