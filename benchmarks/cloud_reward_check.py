@@ -31,9 +31,10 @@ CONSTANTS_MPS2 = (-3.0, 0.0, 1.0, 3.0)
 
 def run_variant(
     model: str, rows: int, cols: int, densities: Sequence[float], seeds: Sequence[int],
-    steps: int, skip: int, edge: Policy, cloud: Policy,
+    steps: int, skip: int, edge: Policy, cloud: Policy, cloud_period: int = 1,
 ) -> dict[str, Any]:
-    """One batch of every (density, seed) pair with the given edge and cloud policies."""
+    """One batch of every (density, seed) pair with the given edge and cloud policies, the
+    cloud deciding every ``cloud_period`` steps."""
     sums = {"cloud_reward": 0.0, "edge_reward": 0.0, "action": 0.0, "columns": 0, "t": 0}
 
     def record(before: Any, _edge: Any, cloud_action: np.ndarray, after: Any) -> None:
@@ -47,7 +48,7 @@ def run_variant(
 
     results = evaluate_batch("EEC", rows, cols, densities, steps, seeds,
                              policies={"edge": edge, "cloud": cloud}, progress=False,
-                             warn=False, on_step=record, model=model)
+                             warn=False, on_step=record, model=model, cloud_period=cloud_period)
     n = max(steps - skip, 1)
     return {
         "cloud_reward": sums["cloud_reward"] / n,
@@ -74,8 +75,13 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
                         help="fill-up steps left out of the mean rewards")
     parser.add_argument("--cloud", type=Path, default=None,
                         help="a cloud checkpoint to check instead of the model's shipped one")
+    parser.add_argument("--cloud-period", type=int, default=None,
+                        help="steps between cloud decisions of every variant (default: a "
+                        "learned cloud's training period, the constant clouds every step)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = parser.parse_args(argv)
+    if args.cloud_period is not None and not 1 <= args.cloud_period <= 1000:
+        parser.error(f"--cloud-period: must be in [1, 1000] steps, got {args.cloud_period}")
     if not 0 <= args.skip < args.steps:
         parser.error(f"--skip: must be in [0, --steps - 1] = [0, {args.steps - 1}], "
                      f"got {args.skip}")
@@ -94,12 +100,14 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     rows = []
     for name, cloud in variants:
         t0 = time.perf_counter()
+        period = args.cloud_period or int((getattr(cloud, "config", None) or {})
+                                          .get("cloud_period", 1))
         r = run_variant(args.model, args.rows, args.cols, args.densities, args.seeds,
-                        args.steps, args.skip, shipped["edge"], cloud)
-        rows.append({"cloud": name, **r})
+                        args.steps, args.skip, shipped["edge"], cloud, period)
+        rows.append({"cloud": name, "cloud_period": period, **r})
         print(f"{name:14s} cloud reward {r['cloud_reward']:+.4f}/step  "
               f"v455 {r['released_velocity_mps']:.3f}  v {r['avg_travel_velocity_mps']:.3f} "
-              f"m/s  collisions {r['collisions']}  mean action "
+              f"m/s  collisions {r['collisions']}  period {period}  mean action "
               f"{r['mean_cloud_action_mps2']:+.3f} m/s^2  ({time.perf_counter() - t0:.0f} s)",
               flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -109,14 +117,16 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         f"{args.rows} --cols {args.cols} --densities {' '.join(f'{d:g}' for d in args.densities)}"
         f" --seeds {' '.join(map(str, args.seeds))} --steps {args.steps} --skip {args.skip}"
         f" --constants {' '.join(f'{a:g}' for a in args.constants)}"
-        + (f" --cloud {args.cloud}" if args.cloud else "") + "`",
+        + (f" --cloud {args.cloud}" if args.cloud else "")
+        + (f" --cloud-period {args.cloud_period}" if args.cloud_period else "") + "`",
         "",
-        "| cloud | cloud reward per step | edge reward per step | released-style v [m/s] | "
-        "avg travel v [m/s] | collisions | mean cloud action [m/s^2] |",
-        "|---|---|---|---|---|---|---|",
+        "| cloud | decides every [steps] | cloud reward per step | edge reward per step | "
+        "released-style v [m/s] | avg travel v [m/s] | collisions | mean cloud action [m/s^2] |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     lines += [
-        f"| {r['cloud']} | {r['cloud_reward']:+.4f} | {r['edge_reward']:+.4f} | "
+        f"| {r['cloud']} | {r['cloud_period']} | {r['cloud_reward']:+.4f} | "
+        f"{r['edge_reward']:+.4f} | "
         f"{r['released_velocity_mps']:.3f} | {r['avg_travel_velocity_mps']:.3f} | "
         f"{r['collisions']} | {r['mean_cloud_action_mps2']:+.3f} |" for r in rows
     ]

@@ -73,7 +73,8 @@ def test_cloud_reward_check_ranks_constant_clouds(tmp_path: Path) -> None:
     assert -3.0 <= by_name["shipped cloud"]["mean_cloud_action_mps2"] <= 3.0
     assert by_name["constant -3"]["cloud_reward"] < by_name["constant +3"]["cloud_reward"]
     text = (tmp_path / "cloud_reward_check_released.md").read_text()
-    assert text.count("| constant") == 4 and "| shipped cloud |" in text
+    assert text.count("| constant") == 4 and "| shipped cloud | 1 |" in text
+    assert {r["cloud_period"] for r in rows} == {1}
 
 
 def test_paper_table_cloud_period_sets_both_clouds(tmp_path: Path) -> None:
