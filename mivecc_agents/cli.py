@@ -206,11 +206,17 @@ def evaluation_policies(
     ``cloud_period`` is adopted first (:func:`adopt_cloud_period`).
     """
     from mivecc_agents.checkpoints import CheckpointError
-    from mivecc_agents.policies import check_policy_config, load_policy, pretrained_path
+    from mivecc_agents.policies import (
+        check_policy_config,
+        load_policy,
+        pretrained_path,
+        uses_policy,
+    )
 
     model = config.model if config is not None else "paper"  # the shipped policies per model
-    paths = {kind: None if args.no_pretrained else pretrained_path(kind, model)
-             for kind in ("edge", "cloud")}
+    # a shipped policy the scheme does not use is not loaded (a given one is, with a warning)
+    paths = {kind: None if args.no_pretrained or (config is not None and not uses_policy(
+        config, kind)) else pretrained_path(kind, model) for kind in ("edge", "cloud")}
     given = {"edge": args.edge_checkpoint, "cloud": args.cloud_checkpoint}
     policies, options = {}, {}
     for kind in ("edge", "cloud"):

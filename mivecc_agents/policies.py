@@ -122,6 +122,11 @@ DYNAMICS_FIELDS: tuple[str, ...] = (
 USED_BY: dict[str, tuple[str, ...]] = {"edge": ("EE", "EEC"), "cloud": ("EEC",)}
 
 
+def uses_policy(config: Any, kind: str) -> bool:
+    """Whether an environment of ``config`` uses the actions of a ``kind`` coordinator."""
+    return config.scheme in USED_BY[kind] or config.control == "signalized"
+
+
 def check_policy_config(policy: Any, config: Any) -> list[str]:
     """Compare a loaded policy's training config with the config it is used in.
 
@@ -149,8 +154,8 @@ def check_policy_config(policy: Any, config: Any) -> list[str]:
         )
     trained = getattr(policy, "config", None) or {}
     out = []
-    if config.scheme not in USED_BY[kind] and config.control != "signalized":
-        out.append(f"scheme {config.scheme} does not use {kind} actions: the policy is ignored")
+    if not uses_policy(config, kind):  # nothing else about it matters
+        return [f"scheme {config.scheme} does not use {kind} actions: the policy is ignored"]
     if kind == "cloud" and trained and (trained.get("rows"), trained.get("cols")) != (
         config.rows, config.cols
     ):

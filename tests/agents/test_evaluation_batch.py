@@ -121,6 +121,12 @@ def test_cli_runs_a_learned_cloud_at_its_training_period(
     out = capsys.readouterr()
     assert json.loads(out.out)["cloud_period"] == 1
     assert "trained deciding every 10 steps" in out.err
-    # the period only matters to the cloud: EE runs as asked
+    # the period only matters to the cloud: EE runs as asked, a given cloud is ignored with a
+    # warning, the shipped one is not even loaded (no warning)
     assert main([*base[:2], "EE", *base[3:]]) == 0
-    assert json.loads(capsys.readouterr().out)["cloud_period"] == 1
+    out = capsys.readouterr()
+    assert json.loads(out.out)["cloud_period"] == 1
+    assert out.err.count("warning") == 1 and "the policy is ignored" in out.err
+    assert main([*base[:2], "EE", *base[3:11], "--set", "model=released"]) == 0
+    out = capsys.readouterr()
+    assert json.loads(out.out)["cloud_period"] == 1 and "warning" not in out.err

@@ -246,8 +246,10 @@ def test_shipped_policies_per_model_load_and_evaluate_deterministically(model):
     assert [runs[0][k] for k in keys] == [runs[1][k] for k in keys]
     # `mivecc evaluate` picks the shipped policies of the config's model
     args = argparse.Namespace(no_pretrained=False, edge_checkpoint=None, cloud_checkpoint=None)
-    chosen = evaluation_policies(args, MiVeCCConfig(model=model, rows=3, cols=3))
+    chosen = evaluation_policies(args, MiVeCCConfig(model=model, rows=3, cols=3, scheme="EEC"))
     assert {k: p.checkpoint for k, p in chosen.items()} == {k: str(p) for k, p in paths.items()}
+    # a scheme that uses neither coordinator loads no shipped policy
+    assert evaluation_policies(args, MiVeCCConfig(model=model, rows=3, cols=3)) == {}
 
 
 def test_constant_policy_is_the_ceiling_coordinator():
