@@ -31,7 +31,13 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from mivecc_agents.evaluation import SCHEMES, aggregate, evaluate_batch, evaluate_scheme
+from mivecc_agents.evaluation import (
+    SCHEMES,
+    adopt_cloud_period,
+    aggregate,
+    evaluate_batch,
+    evaluate_scheme,
+)
 from mivecc_env import __version__
 from mivecc_env.config import ALIASES, ConfigError, MiVeCCConfig, describe_fields
 from mivecc_env.config import from_overrides as _config_from
@@ -230,7 +236,7 @@ def evaluation_policies(
         except CheckpointError as exc:  # a user error: exit 2 with the message
             raise ConfigError(f"{options[kind]}: {exc}") from exc
     if config is not None:
-        if overrides is not None and adopt_cloud_period(config.scheme, policies, overrides):
+        if overrides is not None and adopt_cloud_period(policies, overrides, config.scheme):
             config = _config_from(config, cloud_period=overrides["cloud_period"])
         for kind, policy in policies.items():
             try:
@@ -278,21 +284,6 @@ def _write_out(option: str, path: Path, text: str) -> None:
         path.write_text(text, encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{option}: cannot write {path}: {exc.strerror or exc}") from exc
-
-
-def adopt_cloud_period(scheme: str, policies: dict[str, Any], overrides: dict[str, Any]) -> bool:
-    """Run a learned cloud at the ``cloud_period`` it was trained with (recorded in its
-    checkpoint's config) unless the overrides (``--set cloud_period=...``) name one: adds it
-    to ``overrides`` and returns True if it is not the default 1. Only scheme EEC uses the
-    cloud."""
-    cloud = policies.get("cloud")
-    if scheme != "EEC" or cloud is None or "cloud_period" in overrides:
-        return False
-    period = int((getattr(cloud, "config", None) or {}).get("cloud_period", 1))
-    if period == 1:
-        return False
-    overrides["cloud_period"] = period
-    return True
 
 
 def _evaluation_config(args: argparse.Namespace, overrides: dict[str, Any]) -> MiVeCCConfig:

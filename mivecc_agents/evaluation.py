@@ -98,6 +98,23 @@ def _needed_policies(scheme: str) -> tuple[str, ...]:
     return {"EE": ("edge",), "EEC": ("edge", "cloud")}.get(scheme, ())
 
 
+def adopt_cloud_period(
+    policies: Mapping[str, Policy], overrides: dict[str, Any], scheme: str
+) -> bool:
+    """Run a learned cloud at the ``cloud_period`` it was trained with (recorded in its
+    checkpoint's config, ``policy.config``) unless ``overrides`` name one: adds it to
+    ``overrides`` and returns True if it is not the default 1. Only scheme EEC uses the
+    cloud. Used by :func:`evaluate_scheme`, :func:`evaluate_batch` and ``mivecc evaluate``."""
+    cloud = policies.get("cloud")
+    if scheme != "EEC" or cloud is None or "cloud_period" in overrides:
+        return False
+    period = int((getattr(cloud, "config", None) or {}).get("cloud_period", 1))
+    if period == 1:
+        return False
+    overrides["cloud_period"] = period
+    return True
+
+
 def _check_args(
     scheme: str, steps: Any, seed: Any, policies: Mapping[str, Policy] | None,
     overrides: Mapping[str, Any],
@@ -171,6 +188,7 @@ def evaluate_scheme(
     _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
     overrides = scheme_overrides(scheme, config_overrides)
+    adopt_cloud_period(policies, overrides, overrides["scheme"])
     env = mivecc_v0.parallel_env(
         rows=rows, cols=cols, density=density, max_steps=int(steps), **overrides
     )
@@ -288,6 +306,7 @@ def evaluate_batch(
         _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
     overrides = scheme_overrides(scheme, config_overrides)
+    adopt_cloud_period(policies, overrides, overrides["scheme"])
     pairs = [(float(d), int(s)) for d in dens for s in seeds]
     needed_scheme = overrides["scheme"]
     needed = _needed_policies(needed_scheme)

@@ -130,3 +130,20 @@ def test_cli_runs_a_learned_cloud_at_its_training_period(
     assert main([*base[:2], "EE", *base[3:11], "--set", "model=released"]) == 0
     out = capsys.readouterr()
     assert json.loads(out.out)["cloud_period"] == 1 and "warning" not in out.err
+
+
+def test_evaluation_functions_adopt_a_learned_clouds_period() -> None:
+    policies = pretrained_policies("released")
+    period = policies["cloud"].config["cloud_period"]
+    assert period > 1  # the shipped clouds decide every 10 steps
+    batch = evaluate_batch("EEC", 1, 1, 1500, 30, [0], policies=policies, progress=False,
+                           model="released")
+    single = evaluate_scheme("EEC", 1, 1, 1500, 30, 0, policies=policies, progress=False,
+                             model="released")
+    assert batch[0]["cloud_period"] == single["cloud_period"] == period
+    # an explicit period wins; schemes without the cloud keep the default
+    explicit = evaluate_batch("EEC", 1, 1, 1500, 30, [0], policies=policies, progress=False,
+                              model="released", cloud_period=1)
+    ee = evaluate_scheme("EE", 1, 1, 1500, 30, 0, policies=policies, progress=False,
+                         model="released")
+    assert explicit[0]["cloud_period"] == ee["cloud_period"] == 1
