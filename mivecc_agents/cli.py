@@ -220,9 +220,12 @@ def evaluation_policies(
     )
 
     model = config.model if config is not None else "paper"  # the shipped policies per model
-    # a shipped policy the scheme does not use is not loaded (a given one is, with a warning)
-    paths = {kind: None if args.no_pretrained or (config is not None and not uses_policy(
-        config, kind)) else pretrained_path(kind, model) for kind in ("edge", "cloud")}
+    paths = {}
+    for kind in ("edge", "cloud"):
+        # a shipped policy the scheme does not use is not loaded (a given one is, and warned
+        # about below)
+        unused = config is not None and not uses_policy(config, kind)
+        paths[kind] = None if args.no_pretrained or unused else pretrained_path(kind, model)
     given = {"edge": args.edge_checkpoint, "cloud": args.cloud_checkpoint}
     policies, options = {}, {}
     for kind in ("edge", "cloud"):
