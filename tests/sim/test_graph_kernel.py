@@ -99,13 +99,21 @@ def test_select_per_group_is_the_stable_two_key_sort() -> None:
     _assert_stable_top_k(group, key, n_groups, k)
 
 
+def _random_groups(
+    rng: np.random.Generator, n_range: tuple[int, int], groups_range: tuple[int, int],
+    k_range: tuple[int, int],
+) -> tuple[int, int, int, np.ndarray]:
+    """(n, n_groups, k, group): sizes drawn from the half-open ranges, in that order, then n
+    group ids in [-1, n_groups) (-1: left out)."""
+    n, n_groups, k = (int(rng.integers(*r)) for r in (n_range, groups_range, k_range))
+    return n, n_groups, k, rng.integers(-1, n_groups, n)
+
+
 def test_select_per_group_with_nan_and_signed_zero_keys() -> None:
     # NaN sorts last (as in numpy's sorts), -0.0 ties with 0.0; every k from 1 to past n.
     rng = np.random.default_rng(1)
     for _ in range(100):
-        n, n_groups, k = (int(x) for x in (rng.integers(0, 300), rng.integers(1, 12),
-                                            rng.integers(1, 70)))
-        group = rng.integers(-1, n_groups, n)
+        n, n_groups, k, group = _random_groups(rng, (0, 300), (1, 12), (1, 70))
         key = np.round(rng.normal(size=n), 1)
         key[rng.random(n) < 0.05] = np.nan
         key[rng.random(n) < 0.05] = -0.0
@@ -225,22 +233,32 @@ def test_control_area_before_matches_the_two_calls() -> None:
     assert checked > 500 and past > 100
 
 
+def _edge_selection(cfg: MiVeCCConfig, seeds: list[int], densities: list[float],
+                    steps: int) -> tuple:
+    """A seeded batch after ``steps`` steps and its edge decisions: (sim, view, v, a, area,
+    decision, node, column, centre of each decision's area)."""
+    sim = Simulator(cfg, batch_size=len(seeds), seed=seeds, densities=densities)
+    for _ in range(steps):
+        sim.step()
+    net, view = sim.network, sim.view
+    v = sim.v.ravel()[view.vehicle]
+    a = sim.a.ravel()[view.vehicle]
+    area = net.control_area(view.lane, view.s)
+    dec, node, col = select_edge_decisions(net, view, sim.safety.sv, cfg.k_edge, cfg, area)
+    centre = graph_kernel.area_centres(view.lane[dec], node % net.n_intersections,
+                                       net.lane_intersections, net.lane_centres_s)
+    return sim, view, v, a, area, dec, node, col, centre
+
+
 def test_kernel_overwrites_every_output_element() -> None:
     # The kernel path allocates its outputs uninitialised: buffers full of NaN / garbage come
     # out equal to the numpy path (zero padding written by the kernel), and a repeated
     # (node, column) is refused.
     cfg = MiVeCCConfig(rows=2, cols=2, scheme="EEC")
-    sim = Simulator(cfg, batch_size=3, seed=[7, 8, 9], densities=[300.0, 1500.0, 2700.0])
-    for _ in range(150):
-        sim.step()
-    net, view, b, k = sim.network, sim.view, sim.batch_size, cfg.k_edge
-    v = sim.v.ravel()[view.vehicle]
-    a = sim.a.ravel()[view.vehicle]
-    area = net.control_area(view.lane, view.s)
-    dec, node, col = select_edge_decisions(net, view, sim.safety.sv, k, cfg, area)
+    sim, view, v, a, _, dec, node, col, centre = _edge_selection(
+        cfg, [7, 8, 9], [300.0, 1500.0, 2700.0], 150)
+    net, b, k = sim.network, sim.batch_size, cfg.k_edge
     assert 0 < dec.size < b * net.n_intersections * k  # some padded columns
-    centre = graph_kernel.area_centres(view.lane[dec], node % net.n_intersections,
-                                       net.lane_intersections, net.lane_centres_s)
     ref = build_graphs(net, view, v, a, dec, node, col, net.n_intersections, b, k,
                        2 * cfg.control_radius_m, cfg, centre, cfg.control_radius_m,
                        use_kernel=False)
@@ -273,16 +291,9 @@ def test_area_centres_looked_up_from_the_node() -> None:
     from mivecc_env.sim.state_graph import _CENTRE_OF_NODE, edge_graphs
 
     cfg = MiVeCCConfig(rows=2, cols=3, scheme="EEC")
-    sim = Simulator(cfg, batch_size=2, seed=[3, 4], densities=[1200.0, 2700.0])
-    for _ in range(160):
-        sim.step()
-    net, view, b, k = sim.network, sim.view, sim.batch_size, cfg.k_edge
-    v = sim.v.ravel()[view.vehicle]
-    a = sim.a.ravel()[view.vehicle]
-    area = net.control_area(view.lane, view.s)
-    dec, node, col = select_edge_decisions(net, view, sim.safety.sv, k, cfg, area)
-    centre = graph_kernel.area_centres(view.lane[dec], node % net.n_intersections,
-                                       net.lane_intersections, net.lane_centres_s)
+    sim, view, v, a, area, dec, node, col, centre = _edge_selection(
+        cfg, [3, 4], [1200.0, 2700.0], 160)
+    net, b, k = sim.network, sim.batch_size, cfg.k_edge
     args = (net, view, v, a, dec, node, col, net.n_intersections, b, k,
             2 * cfg.control_radius_m, cfg)
     want = build_graphs(*args, centre, cfg.control_radius_m, use_kernel=False)
@@ -298,9 +309,7 @@ def test_select_per_group_large_groups_with_infinities_and_one_value() -> None:
     # steps aside), one repeated value, huge and tiny ranges, NaN all give the stable sort.
     rng = np.random.default_rng(3)
     for trial in range(60):
-        n, n_groups, k = (int(x) for x in (rng.integers(50, 900), rng.integers(1, 5),
-                                            rng.integers(1, 25)))
-        group = rng.integers(-1, n_groups, n)
+        n, n_groups, k, group = _random_groups(rng, (50, 900), (1, 5), (1, 25))
         scale = [1e-300, 1.0, 1e300][trial % 3]
         key = np.round(rng.normal(size=n), 2) * scale
         if trial % 4 == 0:
