@@ -36,17 +36,18 @@ import torch
 from mivecc_agents.checkpoints import load_checkpoint, network_variant
 from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.networks import make_critic_net
-from mivecc_agents.policies import load_policy, pretrained_policies
+from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 
 ACTION_BOUND_MPS2 = 3.0
 
 
 def collect_states(
     model: str, rows: int, cols: int, densities: Sequence[float], seeds: Sequence[int],
-    steps: int, skip: int, every: int, cloud_path: Path, cloud_period: int,
-) -> tuple[np.ndarray, np.ndarray]:
+    steps: int, skip: int, every: int, cloud_path: Path,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Cloud observations (n, K, K, 3) and masks (n, K) of every environment, kept every
-    ``every`` steps from step ``skip`` on, under the shipped edge and the checkpoint's cloud."""
+    ``every`` steps from step ``skip`` on, under the shipped edge and the checkpoint's cloud
+    (deciding at its training ``cloud_period``, also returned)."""
     shipped = pretrained_policies(model)
     cloud = load_policy(cloud_path, expected_kind="cloud")
     obs: list[np.ndarray] = []
@@ -60,11 +61,10 @@ def collect_states(
             masks.append(np.array(before.cloud_mask[real], dtype=np.float32))
         t[0] += 1
 
-    overrides = {"cloud_period": cloud_period} if cloud_period != 1 else {}
-    evaluate_batch("EEC", rows, cols, densities, steps, seeds,
-                   policies={"edge": shipped["edge"], "cloud": cloud}, progress=False,
-                   warn=False, on_step=record, model=model, **overrides)
-    return np.concatenate(obs), np.concatenate(masks)
+    results = evaluate_batch("EEC", rows, cols, densities, steps, seeds,
+                             policies={"edge": shipped["edge"], "cloud": cloud},
+                             progress=False, warn=False, on_step=record, model=model)
+    return np.concatenate(obs), np.concatenate(masks), int(results[0]["cloud_period"])
 
 
 def critic_gaps(
@@ -138,16 +138,13 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
         parser.error(f"--constants: each must be in [-3, 3] m/s^2, got {bad}")
     cloud = args.cloud
     if cloud is None:
-        from mivecc_agents.policies import pretrained_path
         cloud = pretrained_path("cloud", args.model)
         if cloud is None:
             parser.error(f"--cloud: no shipped cloud for model {args.model!r}; name a checkpoint")
-    period = int(load_checkpoint(cloud, expected_kind="cloud").get("config", {})
-                 .get("cloud_period", 1))
     torch.set_num_threads(1)
     t0 = time.perf_counter()
-    obs, mask = collect_states(args.model, args.rows, args.cols, args.densities, args.seeds,
-                               args.steps, args.skip, args.every, cloud, period)
+    obs, mask, period = collect_states(args.model, args.rows, args.cols, args.densities,
+                                       args.seeds, args.steps, args.skip, args.every, cloud)
     rows = critic_gaps(cloud, obs, mask, args.shift, args.constants)
     print(f"{len(obs)} states of {cloud} (cloud_period {period}), "
           f"{time.perf_counter() - t0:.0f} s")

@@ -31,10 +31,11 @@ CONSTANTS_MPS2 = (-3.0, 0.0, 1.0, 3.0)
 
 def run_variant(
     model: str, rows: int, cols: int, densities: Sequence[float], seeds: Sequence[int],
-    steps: int, skip: int, edge: Policy, cloud: Policy, cloud_period: int = 1,
+    steps: int, skip: int, edge: Policy, cloud: Policy, cloud_period: int | None = None,
 ) -> dict[str, Any]:
     """One batch of every (density, seed) pair with the given edge and cloud policies, the
-    cloud deciding every ``cloud_period`` steps."""
+    cloud deciding every ``cloud_period`` steps (default: a learned cloud's training period,
+    a constant cloud every step)."""
     sums = {"cloud_reward": 0.0, "edge_reward": 0.0, "action": 0.0, "columns": 0, "t": 0}
 
     def record(before: Any, _edge: Any, cloud_action: np.ndarray, after: Any) -> None:
@@ -48,9 +49,11 @@ def run_variant(
 
     results = evaluate_batch("EEC", rows, cols, densities, steps, seeds,
                              policies={"edge": edge, "cloud": cloud}, progress=False,
-                             warn=False, on_step=record, model=model, cloud_period=cloud_period)
+                             warn=False, on_step=record, model=model,
+                             **({} if cloud_period is None else {"cloud_period": cloud_period}))
     n = max(steps - skip, 1)
     return {
+        "cloud_period": int(results[0]["cloud_period"]),
         "cloud_reward": sums["cloud_reward"] / n,
         "edge_reward": sums["edge_reward"] / n,
         "released_velocity_mps": float(np.mean([r["released_velocity_mps"] for r in results])),
@@ -100,14 +103,12 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     rows = []
     for name, cloud in variants:
         t0 = time.perf_counter()
-        period = args.cloud_period or int((getattr(cloud, "config", None) or {})
-                                          .get("cloud_period", 1))
         r = run_variant(args.model, args.rows, args.cols, args.densities, args.seeds,
-                        args.steps, args.skip, shipped["edge"], cloud, period)
-        rows.append({"cloud": name, "cloud_period": period, **r})
+                        args.steps, args.skip, shipped["edge"], cloud, args.cloud_period)
+        rows.append({"cloud": name, **r})
         print(f"{name:14s} cloud reward {r['cloud_reward']:+.4f}/step  "
               f"v455 {r['released_velocity_mps']:.3f}  v {r['avg_travel_velocity_mps']:.3f} "
-              f"m/s  collisions {r['collisions']}  period {period}  mean action "
+              f"m/s  collisions {r['collisions']}  period {r['cloud_period']}  mean action "
               f"{r['mean_cloud_action_mps2']:+.3f} m/s^2  ({time.perf_counter() - t0:.0f} s)",
               flush=True)
     args.out.mkdir(parents=True, exist_ok=True)

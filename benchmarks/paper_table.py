@@ -73,14 +73,9 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
         run_scheme, kind = CEILINGS[scheme]
         k = getattr(MiVeCCConfig(), f"k_{kind}")
         policies[kind] = constant_policy(kind, 3.0, k)
-    # a learned cloud decides at the period it was trained with (cloud_period), the constant
-    # cloud of EEC+3 every step, unless --cloud-period names the period of both
-    period = getattr(policies.get("cloud"), "config", {}).get("cloud_period", 1)
-    if scheme in CEILINGS:
-        period = 1
-    if cloud_period is not None:
-        period = cloud_period
-    extra = {"cloud_period": period} if run_scheme == "EEC" else {}
+    # a learned cloud decides at the period it was trained with (evaluate_batch adopts it),
+    # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both
+    extra = {"cloud_period": cloud_period} if cloud_period and run_scheme == "EEC" else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
                          progress=False, warn=False, model=model, **extra)
     for row in out:

@@ -107,8 +107,9 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     # the gaps are real critic differences: a tiny shift moves Q by about slope x shift
     from mivecc_agents.policies import pretrained_path
 
-    obs, mask = cloud_critic_check.collect_states("released", 1, 1, [1500.0], [0], 200, 100,
-                                                  25, pretrained_path("cloud", "released"), 1)
+    obs, mask, period = cloud_critic_check.collect_states(
+        "released", 1, 1, [1500.0], [0], 200, 100, 25, pretrained_path("cloud", "released"))
+    assert period == pretrained_policies("released")["cloud"].config["cloud_period"]
     assert obs.shape[1:] == (60, 60, 3) and len(obs) == len(mask) == 4
     h = 1e-3
     fine = {r["probe"]: r["mean_gap"] for r in cloud_critic_check.critic_gaps(
