@@ -156,6 +156,7 @@ def evaluate_scheme(
     policies: Mapping[str, Policy] | None = None,
     progress: bool = True,
     warn: bool = True,
+    step_hook: Callable[[Any, int], None] | None = None,
     **config_overrides: Any,
 ) -> dict[str, Any]:
     """Run one episode of ``steps`` env steps and return its metrics and settings.
@@ -173,6 +174,8 @@ def evaluate_scheme(
             a coordinator that the scheme uses and that has no policy acts with zeros.
         progress: show a tqdm progress bar on stderr.
         warn: print the zero-coordinator-action warning to stderr when it applies.
+        step_hook: called as ``step_hook(env, t)`` after the reset (``t = 0``) and after every
+            env step (``t`` = steps taken), to read the env's state (tracing); None: no calls.
         **config_overrides: further :class:`~mivecc_env.config.MiVeCCConfig` fields.
 
     Returns:
@@ -219,6 +222,8 @@ def evaluate_scheme(
             actions[a] = out[i]
 
     obs, infos = env.reset(seed=int(seed))
+    if step_hook is not None:
+        step_hook(env, 0)
     bar = None
     if progress:
         from tqdm.auto import tqdm
@@ -236,6 +241,8 @@ def evaluate_scheme(
             if cloud_policy is not None:
                 act(cloud_policy, [CLOUD_AGENT], obs, infos)
         obs, _, _, _, infos = step(actions)
+        if step_hook is not None:
+            step_hook(env, i + 1)
         if update is not None and (i + 1) % chunk == 0:
             update(chunk)
     wall = time.perf_counter() - t0

@@ -149,10 +149,13 @@ class DDPGLearner:
         return {"loss": self.loss.state_dict(), "optimizer": self.optimizer.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore :meth:`state_dict` (then step the scheduler to the restored progress)."""
+        """Restore :meth:`state_dict`, with the learning rates of the restored progress."""
         self.loss.load_state_dict(state["loss"])
         self.optimizer.load_state_dict(state["optimizer"])
-        self.scheduler.step()
+        # what scheduler.step() would set, without its "step before optimizer.step()" warning
+        for group, base, factor in zip(self.optimizer.param_groups, self.scheduler.base_lrs,
+                                       self.scheduler.lr_lambdas, strict=True):
+            group["lr"] = base * factor(0)
 
 
 def _mean(xs: list[torch.Tensor]) -> float:

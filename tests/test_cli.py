@@ -185,6 +185,15 @@ def test_evaluate_scheme_uses_policies() -> None:
     assert res["mean_speed_mps"] < zero["mean_speed_mps"]
 
 
+def test_evaluate_scheme_step_hook_sees_every_state() -> None:
+    # called after the reset (t = 0) and after each step, on the env being evaluated
+    seen: list[tuple[int, int]] = []
+    res = evaluate_scheme("E", 1, 1, 900, 40, 0, progress=False,
+                          step_hook=lambda env, t: seen.append((t, env.sim.step_count)))
+    assert seen == [(t, t) for t in range(41)]
+    assert res["steps"] == 40
+
+
 def test_evaluate_scheme_rejects_bad_arguments() -> None:
     with pytest.raises(ConfigError, match="scheme"):
         evaluate_scheme("EEE", 1, 1, 900, 10, 0, progress=False)

@@ -191,3 +191,21 @@ def test_two_collector_processes_train(tmp_path):
                  workers=2, progress=False, episode_steps=100, buffer_size=500)
     ckpt = load_checkpoint(path, expected_kind="edge")
     assert ckpt["frames"] >= 800 and ckpt["updates"] > 0  # past the 480-frame warm-up
+
+
+def test_learner_restore_sets_the_restored_progress_learning_rates() -> None:
+    # A restored learner has the decayed learning rates of its progress at once, and restoring
+    # does not step the scheduler before an optimiser step (torch's UserWarning on --resume).
+    import warnings
+
+    from mivecc_agents.learner import DDPGLearner
+    from mivecc_agents.networks import make_actor, make_critic
+
+    torch.manual_seed(0)
+    source = DDPGLearner(make_actor("edge", "edge"), make_critic("edge", "edge"), "edge", TINY)
+    restored = DDPGLearner(make_actor("edge", "edge"), make_critic("edge", "edge"), "edge",
+                           TINY, progress=lambda: 0.75)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        restored.load_state_dict(source.state_dict())
+    assert restored.lr() == pytest.approx((0.25 * TINY.lr_actor, 0.25 * TINY.lr_critic))
