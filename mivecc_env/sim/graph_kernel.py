@@ -36,18 +36,6 @@ U = np.uint64
 
 
 @njit
-def _centre_on_lane(lane_intersections, lane_centres_s, lane, area):  # pragma: no cover
-    """Position [m] on ``lane`` of the centre of intersection ``area`` (the lane's first
-    centre if it does not cross it: argmax of an all-False row is 0)."""
-    which = 0
-    for j in range(lane_intersections.shape[1]):
-        if lane_intersections[lane, j] == area:
-            which = j
-            break
-    return lane_centres_s[lane, which]
-
-
-@njit
 def _channel(x):  # pragma: no cover - compiled
     return np.float32(min(max(x, -1.0), 1.0))
 
@@ -73,11 +61,6 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         slot[j] = -1
         view_index[j] = -1
     va = _channels(velocity, accel, v_lo, v_mul, a_mul)
-    centre_of = np.zeros((lane_intersections.shape[0], max(n_area, 1)))  # [lane, area]
-    for lane in range(lane_intersections.shape[0]):
-        for area in range(n_area):
-            centre_of[lane, area] = _centre_on_lane(lane_intersections, lane_centres_s, lane,
-                                                    area)
     b_idx = np.empty(k + 1, np.int64)  # valid candidates behind / ahead of one decision
     b_dist = np.empty(k + 1, np.float64)  # (+ a sentinel)
     a_idx = np.empty(k + 1, np.int64)
@@ -89,15 +72,20 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         c = 0.0
         if use_area:
             if n_area > 0:  # the centre of area node % n_area on the lane (_area_centres)
-                c = centre_of[U(lane), U(node[i]) % U(n_area)]
+                area = node[i] % n_area
+                which = 0
+                for j in range(lane_intersections.shape[1]):
+                    if lane_intersections[lane, j] == area:
+                        which = j
+                        break
+                c = lane_centres_s[lane, which]
             else:
                 c = centre[i]
         # row 0: distance to the next conflict point ahead (the lane end past the last one)
         stop = np.inf
-        for cp in lane_cp_s[lane]:  # sorted: the first one at or past s
-            if cp >= s:
+        for cp in lane_cp_s[lane]:
+            if cp >= s and cp < stop:
                 stop = cp
-                break
         if not np.isfinite(stop):
             stop = lane_length[lane]
         head = node[i] * (k * k) + column[i]
@@ -116,28 +104,19 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         lo = max(run_start[p], p - (k - 1))
         hi = min(run_end[p], p + k)  # exclusive
         nb = 0
-        prev = -1.0  # the last valid distance behind (distances are >= 0)
-        tie = False  # two valid points behind at one distance
         if use_area:
             for q in range(p - 1, lo - 1, -1):  # valid points behind, nearest (highest) first
                 x = point_pos[U(q)]
-                dist = abs(x - s)
                 b_idx[U(nb)] = q
-                b_dist[U(nb)] = dist
-                valid = abs(x - c) <= radius
-                tie |= valid & (dist == prev)
-                prev = dist if valid else prev
-                nb += valid
+                b_dist[U(nb)] = abs(x - s)
+                nb += abs(x - c) <= radius
         else:
             for q in range(p - 1, lo - 1, -1):
-                dist = abs(point_pos[U(q)] - s)
                 b_idx[U(nb)] = q
-                b_dist[U(nb)] = dist
-                tie |= dist == prev
-                prev = dist
+                b_dist[U(nb)] = abs(point_pos[U(q)] - s)
                 nb += 1
         # a run of equal distances behind goes out in increasing point index
-        t = 0 if tie else nb
+        t = 0
         while t < nb - 1:
             if b_dist[t + 1] != b_dist[t]:
                 t += 1
@@ -217,8 +196,8 @@ def build(
         view: the :class:`~mivecc_env.sim.virtual_lane.VirtualLaneView`.
         velocity / accel: (n,) per view vehicle [m/s], [m/s^2].
         v_lo / v_mul / a_mul: velocity channel ``(v - v_lo) * v_mul - 1``, accel ``a * a_mul``.
-        lane_cp_s / lane_length: the network's conflict points per lane (ascending, inf
-            padding) and lane lengths [m].
+        lane_cp_s / lane_length: the network's conflict points per lane (inf padding) and
+            lane lengths [m].
         centre / radius: area filter of the references [m]: ``None`` (no filter), (D,) the
             centre of each decision's area on its lane, or ``(n_area, lane_intersections,
             lane_centres_s)``: the area is intersection ``node % n_area``, its centre looked
@@ -450,7 +429,12 @@ def select_capped_desc(
 def _area_centres(lane, area, lane_intersections, lane_centres_s):  # pragma: no cover
     out = np.empty(lane.shape[0], np.float64)
     for i in range(lane.shape[0]):
-        out[i] = _centre_on_lane(lane_intersections, lane_centres_s, lane[i], area[i])
+        which = 0  # argmax of an all-False row is 0
+        for j in range(lane_intersections.shape[1]):
+            if lane_intersections[lane[i], j] == area[i]:
+                which = j
+                break
+        out[i] = lane_centres_s[lane[i], which]
     return out
 
 
