@@ -167,6 +167,20 @@ def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixtu
     assert "v1389 lane 5 s= 152.32" in out and "collision events: 1" in out
 
 
+@pytest.mark.slow
+def test_trace_collisions_eec_finds_the_documented_event(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # docs/training.md, "The released model's EEC events, traced": EEC with the released
+    # model's shipped policies, 1500, seed 0, step 2377: a crossing pair, one of them more
+    # than 5 m past its centre (on no control area, -1)
+    records = trace_collisions.main(["--scheme", "EEC", "--density", "1500", "--seed", "0",
+                                     "--steps", "2378", "--history", "2"])
+    out = capsys.readouterr().out
+    assert [r["step"] for r in records] == [2377]
+    assert sorted(records[0]["vehicles"]) == [935, 974] and -1 in records[0]["areas"]
+    assert "v974 lane 2 s= 304.41" in out and "collision events: 1" in out
+
+
 def test_released_reference_geometry_and_streams() -> None:
     # released lanes by group of 3: southbound, westbound, northbound, eastbound (x = -155,
     # -5, 145 for the southbound ones); this grid shifted by (-300, -300) m
