@@ -5,9 +5,10 @@ Runs MiVeCC-EEC with the model's shipped edge policy and, as the cloud, constant
 (density, seed) pairs of a variant as one batch. Prints, per variant, the mean stage-II
 reward per step (the cloud reward the trainer optimises, after ``--skip`` fill-up steps),
 the mean edge reward, the released-style velocity and this project's average travel
-velocity, strict collision events, and the shipped cloud's mean action over its real
-columns. If the reward orders the constant actions as the velocity does, a cloud that fails
-to reach the +3 ceiling fails for lack of learning, not because of its reward.
+velocity, strict collision events, and the shipped cloud's mean action over the real
+columns of its decisions. If the reward orders the constant actions as the velocity does, a
+cloud that fails to reach the +3 ceiling fails for lack of learning, not because of its
+reward.
 
 Usage (about 1 min on an idle 2-core machine):
     python benchmarks/cloud_reward_check.py --model released --out benchmarks/results
@@ -39,7 +40,7 @@ def run_variant(
     sums = {"cloud_reward": 0.0, "edge_reward": 0.0, "action": 0.0, "columns": 0, "t": 0}
 
     def record(before: Any, _edge: Any, cloud_action: np.ndarray, after: Any) -> None:
-        real = before.cloud_mask > 0
+        real = (before.cloud_mask > 0) & ~np.isnan(cloud_action)  # NaN: no decision
         sums["action"] += float(cloud_action[real].sum())
         sums["columns"] += int(real.sum())
         if sums["t"] >= skip:

@@ -238,8 +238,8 @@ def evaluate_scheme(
         if uses_policy:
             if edge_policy is not None:
                 act(edge_policy, edge_agents, obs, infos)
-            if cloud_policy is not None:
-                act(cloud_policy, [CLOUD_AGENT], obs, infos)
+            if cloud_policy is not None and env.batched.cloud_decides[0]:
+                act(cloud_policy, [CLOUD_AGENT], obs, infos)  # ignored on other steps
         obs, _, _, _, infos = step(actions)
         if step_hook is not None:
             step_hook(env, i + 1)
@@ -290,9 +290,11 @@ def evaluate_batch(
         densities: one density or several [veh/lane/h].
         seeds: the seeds; each density runs every seed.
         on_step: called after every step as ``on_step(before, edge, cloud, after)``: the
-            :class:`~mivecc_env.batched.BatchStep` the actions were chosen on, the executed
+            :class:`~mivecc_env.batched.BatchStep` the actions were chosen on, the given
             (B, n_edge, K) edge and (B, K) cloud actions [m/s^2] (``None`` where the scheme
-            has none) and the step's result (rewards, next observations).
+            has none; NaN cloud rows for the environments whose cloud does not decide on
+            this step, ``cloud_period`` > 1: their policy is not called) and the step's
+            result (rewards, next observations).
 
     Returns:
         One result per (density, seed), densities outer and seeds inner, each with the keys of
@@ -330,11 +332,13 @@ def evaluate_batch(
     a_max = cfg.a_max_mps2
     b = len(pairs)
 
-    def act(policy: Policy | None, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        """(B, n, K) float64 actions; one policy call per environment (B = 1 shapes)."""
+    def act(policy: Policy | None, obs: np.ndarray, mask: np.ndarray,
+            envs: Sequence[int] = range(b)) -> np.ndarray:
+        """(B, n, K) float64 actions; one policy call per environment of ``envs`` (B = 1
+        shapes), zeros for the others."""
         out = np.zeros(mask.shape, np.float32)
         if policy is not None:
-            for i in range(b):
+            for i in envs:
                 a = np.asarray(policy(obs[i], mask[i]), dtype=np.float32)
                 if a.shape != mask[i].shape:
                     raise ValueError(f"policy returned shape {a.shape}, expected {mask[i].shape}")
@@ -357,10 +361,15 @@ def evaluate_batch(
         if "edge" in needed:
             edge = act(edge_policy, step.edge_obs, step.edge_mask)
         if "cloud" in needed:
-            cloud = act(cloud_policy, step.cloud_obs[:, None], step.cloud_mask[:, None])[:, 0]
+            # the env ignores the cloud action of an environment that does not decide on this
+            # step (cloud_period > 1): its policy is not called there
+            decides = env.cloud_decides
+            cloud = act(cloud_policy, step.cloud_obs[:, None], step.cloud_mask[:, None],
+                        np.flatnonzero(decides).tolist())[:, 0]
         before, step = step, env.step(edge, cloud)
         if on_step is not None:
-            on_step(before, edge, cloud, step)
+            on_step(before, edge, cloud if cloud is None or decides.all()
+                    else np.where(decides[:, None], cloud, np.nan), step)
         if bar is not None and (i + 1) % chunk == 0:
             bar.update(chunk)
     wall = time.perf_counter() - t0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("torch")
@@ -147,3 +148,30 @@ def test_evaluation_functions_adopt_a_learned_clouds_period() -> None:
     ee = evaluate_scheme("EE", 1, 1, 1500, 30, 0, policies=policies, progress=False,
                          model="released")
     assert explicit[0]["cloud_period"] == ee["cloud_period"] == 1
+
+
+def test_a_learned_cloud_is_asked_only_on_its_decision_steps() -> None:
+    # Between decisions the env ignores the cloud action (tests/env/test_cloud_period.py), so
+    # both evaluation paths call the cloud policy on the decision steps only: 0, 10, 20, 30, 40.
+    shipped = pretrained_policies("released")
+    calls: list[int] = []
+
+    def cloud(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        calls.append(obs.shape[0])
+        return shipped["cloud"](obs, mask)
+
+    cloud.config = shipped["cloud"].config  # type: ignore[attr-defined]  # period 10
+    policies = {"edge": shipped["edge"], "cloud": cloud}
+    decided: list[int] = []  # environments whose cloud row is an action (not NaN), per step
+
+    def record(before, edge, cloud_action, after) -> None:
+        decided.append(int((~np.isnan(cloud_action[:, 0])).sum()))
+
+    batch = evaluate_batch("EEC", 1, 1, 1500, 45, [0, 1], policies=policies, progress=False,
+                           model="released", on_step=record)
+    assert len(calls) == 2 * 5 and decided == ([2] + [0] * 9) * 4 + [2] + [0] * 4
+    calls.clear()
+    single = evaluate_scheme("EEC", 1, 1, 1500, 45, 1, policies=policies, progress=False,
+                             model="released")
+    assert len(calls) == 5
+    assert _same(batch[1], single) == []
