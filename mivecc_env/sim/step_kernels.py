@@ -452,6 +452,8 @@ def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_al
     has_edge = edge.size > 0
     has_cloud = cloud.size > 0
     has_raw = raw.size > 0
+    pass_time = part[0]
+    pass_length = part[1]
     for i in range(n):
         k = vehicle[i]
         s = s_all[k]
@@ -496,11 +498,8 @@ def _move(vehicle, env, lane, sv, d_front, d_back, edge, cloud, raw, s_all, v_al
         length = lane_length[ln]
         out[i] = sn >= length
         if rec:
-            mark = mark_s[ln]
-            if s < mark and sn >= mark:
-                n_pass[b] += 1
-                part[0, b] += t0[b] + _cross_frac(mark, s, sn) * dt - t_enter[k]
-                part[1, b] += mark
+            _add_passing(n_pass, pass_time, pass_length, b, mark_s[ln], s, sn, t0[b], dt,
+                         t_enter[k])
             if sn >= length:
                 _add_exit(part[2:], b, length, _exit_time(length, s, sn, t0[b], t1[b]),
                           t_arrive[k], t_enter[k])
@@ -528,6 +527,17 @@ def _cross_frac(mark, s_old, s_new):  # pragma: no cover
     frac = (mark - s_old) / (step if step >= 1e-12 else 1e-12)
     frac = frac if frac > 0.0 else 0.0
     return frac if frac < 1.0 else 1.0
+
+
+@njit
+def _add_passing(count, time, length, e, mark, s_old, s_new, t0, dt, t_enter):  # pragma: no cover
+    """Add a vehicle moving s_old -> s_new in the step from ``t0`` [s] that reaches its
+    ``mark`` [m] to environment ``e``'s passing sums: one passing, its time since entry [s],
+    the mark's distance [m]."""
+    if s_old < mark and s_new >= mark:
+        count[e] += 1
+        time[e] += t0 + _cross_frac(mark, s_old, s_new) * dt - t_enter
+        length[e] += mark
 
 
 @njit
@@ -613,13 +623,9 @@ def _record_passing(env, lane, vehicle, s_old, s_new, t_enter_all, mark_s, t0, d
     time_b = np.zeros(bsz, np.float64)
     length_b = np.zeros(bsz, np.float64)
     for i in range(env.size):
-        mark = mark_s[lane[i]]
-        so, sn = s_old[i], s_new[i]
-        if so < mark and sn >= mark:
-            e = env[i]
-            n_b[e] += 1
-            time_b[e] += t0[e] + _cross_frac(mark, so, sn) * dt - t_enter_all[vehicle[i]]
-            length_b[e] += mark
+        e = env[i]
+        _add_passing(n_b, time_b, length_b, e, mark_s[lane[i]], s_old[i], s_new[i], t0[e], dt,
+                     t_enter_all[vehicle[i]])
     for e in range(bsz):
         count[e] += n_b[e]
         sum_time[e] += time_b[e]
