@@ -153,25 +153,62 @@ def test_evaluation_functions_adopt_a_learned_clouds_period() -> None:
 def test_a_learned_cloud_is_asked_only_on_its_decision_steps() -> None:
     # Between decisions the env ignores the cloud action (tests/env/test_cloud_period.py), so
     # both evaluation paths call the cloud policy on the decision steps only: 0, 10, 20, 30, 40.
+    # (evaluate_batch's check of a stacked call, before step 0, counts as step 0.)
     shipped = pretrained_policies("released")
-    calls: list[int] = []
+    calls: list[int] = []  # the step of each call
+    decided: list[int] = []  # environments whose cloud row is an action (not NaN), per step
 
     def cloud(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
-        calls.append(obs.shape[0])
+        calls.append(len(decided))
         return shipped["cloud"](obs, mask)
 
     cloud.config = shipped["cloud"].config  # type: ignore[attr-defined]  # period 10
     policies = {"edge": shipped["edge"], "cloud": cloud}
-    decided: list[int] = []  # environments whose cloud row is an action (not NaN), per step
 
     def record(before, edge, cloud_action, after) -> None:
         decided.append(int((~np.isnan(cloud_action[:, 0])).sum()))
 
     batch = evaluate_batch("EEC", 1, 1, 1500, 45, [0, 1], policies=policies, progress=False,
                            model="released", on_step=record)
-    assert len(calls) == 2 * 5 and decided == ([2] + [0] * 9) * 4 + [2] + [0] * 4
+    assert sorted(set(calls)) == [0, 10, 20, 30, 40]
+    assert decided == ([2] + [0] * 9) * 4 + [2] + [0] * 4
     calls.clear()
     single = evaluate_scheme("EEC", 1, 1, 1500, 45, 1, policies=policies, progress=False,
                              model="released")
     assert len(calls) == 5
     assert _same(batch[1], single) == []
+
+
+def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
+    # Where stacking gives the per-environment bits (checked first), the policy is called
+    # once per step for the whole batch; a policy whose output depends on its batch size is
+    # called per environment, and the results still equal one run per seed.
+    from mivecc_agents.evaluation import stacking_is_exact
+
+    edge = pretrained_policies("released")["edge"]
+    sizes: list[int] = []
+
+    def counted(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        sizes.append(obs.shape[0])
+        return edge(obs, mask)
+
+    stacked = stacking_is_exact(edge, 2, 9, 15)  # 3x3: 9 edge nodes per environment
+    batch = evaluate_batch("EE", 3, 3, [900.0, 2100.0], 150, [0], policies={"edge": counted},
+                           progress=False)
+    assert sizes[:3] == [18, 9, 9]  # the check: stacked, then one call per environment
+    assert sizes[3:] == ([18] * 150 if stacked else [9] * 300)
+    for r in batch:
+        single = evaluate_scheme("EE", 3, 3, r["density"], 150, 0, policies={"edge": edge},
+                                 progress=False)
+        assert _same(r, single) == []
+
+    def batch_dependent(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return edge(obs, mask) + np.float32(1e-3 * obs.shape[0]) * mask
+
+    assert not stacking_is_exact(batch_dependent, 2, 1, 15)
+    policies = {"edge": batch_dependent}
+    batch = evaluate_batch("EE", 1, 1, 1500, 200, [0, 3], policies=policies, progress=False)
+    for r in batch:
+        single = evaluate_scheme("EE", 1, 1, 1500, 200, r["seed"], policies=policies,
+                                 progress=False)
+        assert _same(r, single) == []
