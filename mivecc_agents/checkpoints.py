@@ -177,6 +177,14 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
     return path
 
 
+def _first_sentence(text: str, limit: int = 120) -> str:
+    """The first sentence of an error message, at most ``limit`` characters (torch's loader
+    errors go on with advice, such as unpickling untrusted files, that does not apply)."""
+    first = text.strip().splitlines()[0] if text.strip() else ""
+    first = first.split(". ")[0]
+    return first if len(first) <= limit else first[: limit - 3] + "..."
+
+
 def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -> dict[str, Any]:
     """Load and validate a checkpoint.
 
@@ -201,7 +209,7 @@ def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -
     except Exception as exc:  # pickle/zip/EOF errors of many kinds
         raise CheckpointError(
             f"{path}: not a readable mivecc checkpoint (corrupt or truncated file?): "
-            f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            f"{type(exc).__name__}: {_first_sentence(str(exc))}"
         ) from exc
     if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
         raise CheckpointError(f"{path}: not a mivecc checkpoint (no '{CHECKPOINT_FORMAT}' marker)")

@@ -29,7 +29,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from mivecc_agents.evaluation import (
     SCHEMES,
@@ -423,9 +423,17 @@ def _stage2_config(args: argparse.Namespace) -> MiVeCCConfig:
 COMMANDS.append(add_train_parser)
 
 
+class _OneLineErrors(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr (exit status 2), pointing
+    to ``--help`` instead of printing the whole usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
-    parser = argparse.ArgumentParser(
+    parser = _OneLineErrors(
         prog=PROG, description="MiVeCC: multi-intersection vehicular cooperative control.",
     )
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")

@@ -198,3 +198,39 @@ def test_train_warns_when_the_frozen_edge_policy_was_trained_elsewhere(
     assert lines[0].startswith("mivecc: warning: --edge-checkpoint: trained with other dynamics")
     assert "v_max_mps=15.0 (here 13.0)" in lines[0]
     assert lines[1].startswith("mivecc: error: --resume:")
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["evaluate", "--seeds", "a"], "argument --seeds: invalid int value: 'a'"),
+        (["evaluate", "--scheme", "XYZ"], "argument --scheme: invalid choice: 'XYZ'"),
+        (["train", "--frames", "many"], "argument --frames: invalid int value: 'many'"),
+        (["evaluate", "--no-such-option"], "unrecognized arguments: --no-such-option"),
+        (["bogus"], "argument COMMAND: invalid choice: 'bogus'"),
+    ],
+)
+def test_malformed_arguments_are_one_line_exit_2(
+    capsys: pytest.CaptureFixture[str], argv: list[str], expected: str
+) -> None:
+    # argparse's own errors (types, choices, unknown options): one line pointing to --help,
+    # not the whole usage block
+    code = main(argv)
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and expected in err, err
+    assert err.strip().endswith("--help)")
+
+
+def test_a_file_that_is_not_a_checkpoint_is_named_in_one_short_line(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # torch's loader error goes on with advice about untrusted pickles: only its first
+    # sentence is kept
+    notes = tmp_path / "notes.pt"
+    notes.write_text("not a checkpoint\n")
+    code = main(["evaluate", "--scheme", "EE", "--steps", "10", "--edge-checkpoint", str(notes),
+                 "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert "not a readable mivecc checkpoint" in err and len(err) < 300, err
