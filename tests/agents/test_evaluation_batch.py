@@ -206,6 +206,13 @@ def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
         return edge(obs, mask) + np.float32(1e-3 * obs.shape[0]) * mask
 
     assert not stacking_is_exact(batch_dependent, 2, 1, 15)
+
+    def one_environment_only(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        if obs.shape[0] != 1:
+            raise ValueError("written for one edge node")
+        return edge(obs, mask)
+
+    assert not stacking_is_exact(one_environment_only, 2, 1, 15)  # not stacked, no error
     policies = {"edge": batch_dependent}
     batch = evaluate_batch("EE", 1, 1, 1500, 200, [0, 3], policies=policies, progress=False)
     for r in batch:
