@@ -343,11 +343,10 @@ def evaluate_batch(
         out = np.zeros(mask.shape, np.float32)
         if policy is not None:
             if stacked and len(envs) == b:
-                a = np.asarray(policy(obs.reshape(-1, *obs.shape[2:]),
-                                      mask.reshape(-1, mask.shape[-1])), dtype=np.float32)
-                if a.size != out.size:
-                    raise ValueError(f"policy returned shape {a.shape}, expected "
-                                     f"{(mask.shape[0] * mask.shape[1], mask.shape[2])}")
+                rows = mask.reshape(-1, mask.shape[-1])
+                a = np.asarray(policy(obs.reshape(-1, *obs.shape[2:]), rows), dtype=np.float32)
+                if a.shape != rows.shape:
+                    raise ValueError(f"policy returned shape {a.shape}, expected {rows.shape}")
                 out[:] = a.reshape(out.shape)
             else:
                 for i in envs:
