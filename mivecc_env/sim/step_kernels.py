@@ -32,28 +32,49 @@ from mivecc_env.sim.safety import MIN_DISTANCE_M, MIN_TTC_S, SV_T_SAFE
 
 
 @njit
+def _gather_neighbours(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
+                       ego_acc, closing, acc):  # pragma: no cover
+    """Write each view vehicle's closing speed on its nearer neighbour [m/s] into
+    ``closing`` and its SV_acc acceleration [m/s^2] into ``acc`` (one formula for
+    :func:`_safety_inputs` and :func:`_safety_prep`).
+
+    Both neighbours are read and the nearer one selected without a branch: which one is
+    nearer is a coin toss per vehicle, a branch on it mispredicts half the time."""
+    for i in range(vehicle.size):
+        k = vehicle[i]
+        v = v_all[k]
+        f, bk = front[i], back[i]
+        kf = vehicle[point_vehicle[f if f >= 0 else 0]]
+        kb = vehicle[point_vehicle[bk if bk >= 0 else 0]]
+        vf = v_all[kf] if f >= 0 else 0.0
+        vb = v_all[kb] if bk >= 0 else 0.0
+        closing[i] = (v - vf) if d_front[i] <= d_back[i] else (vb - v)
+        if ego_acc:
+            acc[i] = a_all[k]
+        else:
+            acc[i] = a_all[kf] if f >= 0 else 0.0
+
+
+@njit
+def _ttc_of(d, closing):  # pragma: no cover
+    """Time to collision [s] at distance ``d`` [m] and closing speed ``closing`` [m/s]."""
+    return d / closing if (closing > 0) & (d != np.inf) else np.inf
+
+
+@njit
 def _safety_inputs(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
                    ego_acc):  # pragma: no cover
     n = vehicle.size
     d_nearest = np.empty(n, np.float64)
     ttc = np.empty(n, np.float64)
     acc = np.empty(n, np.float64)
+    _gather_neighbours(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
+                       ego_acc, ttc, acc)
     for i in range(n):
-        v = v_all[vehicle[i]]
         df, db = d_front[i], d_back[i]
         d = df if df < db else db
-        if df <= db:
-            vf = v_all[vehicle[point_vehicle[front[i]]]] if front[i] >= 0 else 0.0
-            closing = v - vf
-        else:
-            vb = v_all[vehicle[point_vehicle[back[i]]]] if back[i] >= 0 else 0.0
-            closing = vb - v
         d_nearest[i] = d
-        ttc[i] = d / closing if (closing > 0 and d != np.inf) else np.inf
-        if ego_acc:
-            acc[i] = a_all[vehicle[i]]
-        else:
-            acc[i] = a_all[vehicle[point_vehicle[front[i]]]] if front[i] >= 0 else 0.0
+        ttc[i] = _ttc_of(d, ttc[i])
     return d_nearest, ttc, acc
 
 
@@ -74,34 +95,20 @@ def _safety_prep(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_b
                  min_d, alpha_d, thr, alpha_acc):  # pragma: no cover
     """:func:`_safety_inputs` plus the arguments of the safety value's two logs.
 
-    Two passes: the gathers (both neighbours read, the nearer one selected without a branch:
-    which one is nearer is a coin toss per vehicle, a branch on it mispredicts half the time),
-    then the arithmetic on contiguous arrays (vectorised by the compiler). ``ttc`` holds the
-    closing speed between the two."""
+    Two passes: the gathers (:func:`_gather_neighbours`), then the arithmetic on contiguous
+    arrays (vectorised by the compiler). ``ttc`` holds the closing speed between the two."""
     n = vehicle.size
     out = np.empty(4 * n, np.float64)  # ttc, acc, logs: one array returned (one boxing call)
     ttc = out[:n]
     acc = out[n:2 * n]
     logs = out[2 * n:]  # d / alpha_d, then min(d_front / thr, alpha_acc)
-    for i in range(n):
-        k = vehicle[i]
-        v = v_all[k]
-        f, bk = front[i], back[i]
-        kf = vehicle[point_vehicle[f if f >= 0 else 0]]
-        kb = vehicle[point_vehicle[bk if bk >= 0 else 0]]
-        vf = v_all[kf] if f >= 0 else 0.0
-        vb = v_all[kb] if bk >= 0 else 0.0
-        ttc[i] = (v - vf) if d_front[i] <= d_back[i] else (vb - v)  # closing speed
-        if ego_acc:
-            acc[i] = a_all[k]
-        else:
-            acc[i] = a_all[kf] if f >= 0 else 0.0
+    _gather_neighbours(v_all, a_all, vehicle, point_vehicle, front, back, d_front, d_back,
+                       ego_acc, ttc, acc)
     n_sensitive = 0
     for i in range(n):
         df, db = d_front[i], d_back[i]
         d = df if df < db else db
-        closing = ttc[i]
-        t = d / closing if (closing > 0) & (d != np.inf) else np.inf
+        t = _ttc_of(d, ttc[i])
         ttc[i] = t
         n_sensitive += (t > 0.0) & (t < 1.0)
         logs[i] = (d if d > min_d else min_d) / alpha_d
