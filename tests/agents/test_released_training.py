@@ -262,3 +262,21 @@ def test_constant_policy_is_the_ceiling_coordinator():
     assert out.dtype == np.float32 and fn.kind == "edge" and fn.grid_size == 15
     with pytest.raises(ValueError, match="accel_mps2"):
         constant_policy("cloud", 3.5, 60)
+
+
+def test_shipped_policies_record_their_documented_training_settings():
+    # docs/training.md, "Shipped pretrained policies": every pair trained with the released
+    # trainer; the released model's edge with SV weight 0.1 (session 9), the default model's
+    # with the trainer's 1.0; both clouds decide every 10 steps.
+    from mivecc_agents.policies import pretrained_policies
+
+    expected = {
+        ("paper", "edge"): {"model": "paper", "reward_sv_weight": 1.0},
+        ("paper", "cloud"): {"model": "paper", "cloud_period": 10},
+        ("released", "edge"): {"model": "released", "reward_sv_weight": 0.1,
+                               "collision_penalty": 0.0},
+        ("released", "cloud"): {"model": "released", "cloud_period": 10},
+    }
+    for (model, kind), settings in expected.items():
+        config = pretrained_policies(model)[kind].config
+        assert {k: config.get(k) for k in settings} == settings, (model, kind)
