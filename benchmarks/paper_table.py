@@ -59,15 +59,11 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
     from mivecc_agents.evaluation import evaluate_batch
-    from mivecc_agents.policies import constant_policy, load_policy, pretrained_policies
+    from mivecc_agents.policies import constant_policy, pretrained_policies
     from mivecc_env.config import MiVeCCConfig
 
     scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period = job
-    policies = pretrained_policies(model)
-    if edge_path:
-        policies["edge"] = load_policy(edge_path, expected_kind="edge")
-    if cloud_path:
-        policies["cloud"] = load_policy(cloud_path, expected_kind="cloud")
+    policies = pretrained_policies(model, edge=edge_path, cloud=cloud_path)
     run_scheme = scheme
     if scheme in CEILINGS:
         run_scheme, kind = CEILINGS[scheme]

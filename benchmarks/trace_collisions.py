@@ -6,11 +6,12 @@ without reaching their lane's end, their lane, position ``s`` [m], speed [m/s] a
 acceleration (``a`` of the table) [m/s^2] over the ``--history`` steps before the event (from
 ``Simulator.vehicle_table``). Scheme ``E`` runs the rules alone; ``EE`` / ``EEC`` run the
 model's shipped policies (a learned cloud at its checkpoint's ``cloud_period``), as
-``mivecc evaluate`` does.
+``mivecc evaluate`` does, or the checkpoints given with ``--edge`` / ``--cloud``.
 
-Examples (the events of ``docs/results/released_study.md``, "Traced collisions"):
+Examples (E: the events of ``docs/results/released_study.md``, "Traced collisions"; EEC: the
+shipped released pair's one event on the paper table's seeds, ``docs/training.md``):
     python benchmarks/trace_collisions.py --density 1500 --seed 1 --model released
-    python benchmarks/trace_collisions.py --scheme EEC --density 2100 --seed 2 --model released
+    python benchmarks/trace_collisions.py --scheme EEC --density 2100 --seed 1 --model released
 """
 
 from __future__ import annotations
@@ -76,9 +77,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--scheme", default="E", choices=["E", "EE", "EEC"],
                    help="EE / EEC act with the model's shipped policies")
     p.add_argument("--history", type=int, default=30, help="steps printed before an event")
+    p.add_argument("--edge", default=None, help="edge checkpoint (default: the shipped one)")
+    p.add_argument("--cloud", default=None, help="cloud checkpoint (default: the shipped one)")
     args = p.parse_args(argv)
 
-    policies = pretrained_policies(args.model) if args.scheme != "E" else {}
+    policies = (pretrained_policies(args.model, edge=args.edge, cloud=args.cloud)
+                if args.scheme != "E" else {})
     tracer = CollisionTracer(args.history)
     result = evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                              args.seed, policies=policies, progress=False, model=args.model,

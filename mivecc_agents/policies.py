@@ -188,11 +188,15 @@ def pretrained_path(kind: str, model: str = "paper") -> Path | None:
     return path if path.is_file() else None
 
 
-def pretrained_policies(model: str = "paper") -> dict[str, Policy]:
-    """The shipped policies of a model as ``{"edge": fn, "cloud": fn}`` (the kinds shipped)."""
+def pretrained_policies(
+    model: str = "paper", edge: str | Path | None = None, cloud: str | Path | None = None,
+) -> dict[str, Policy]:
+    """The shipped policies of a model as ``{"edge": fn, "cloud": fn}`` (the kinds shipped);
+    a checkpoint given as ``edge`` / ``cloud`` replaces that kind's shipped policy."""
+    given = {"edge": edge, "cloud": cloud}
     out: dict[str, Policy] = {}
     for kind in ("edge", "cloud"):
-        path = pretrained_path(kind, model)
+        path = given[kind] or pretrained_path(kind, model)
         if path is not None:
             out[kind] = load_policy(path, expected_kind=kind)
     return out

@@ -171,14 +171,14 @@ def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixtu
 def test_trace_collisions_eec_finds_the_documented_event(
         capsys: pytest.CaptureFixture[str]) -> None:
     # docs/training.md, "The released model's EEC events, traced": EEC with the released
-    # model's shipped policies, 1500, seed 0, step 2377: a crossing pair, one of them more
-    # than 5 m past its centre (on no control area, -1)
-    records = trace_collisions.main(["--scheme", "EEC", "--density", "1500", "--seed", "0",
-                                     "--steps", "2378", "--history", "2"])
+    # model's shipped policies, 2100, seed 1, step 491: a crossing pair, one of them more
+    # than 5 m past its last centre (on no control area, -1)
+    records = trace_collisions.main(["--scheme", "EEC", "--density", "2100", "--seed", "1",
+                                     "--steps", "492", "--history", "2"])
     out = capsys.readouterr().out
-    assert [r["step"] for r in records] == [2377]
-    assert sorted(records[0]["vehicles"]) == [935, 974] and -1 in records[0]["areas"]
-    assert "v974 lane 2 s= 304.41" in out and "collision events: 1" in out
+    assert [r["step"] for r in records] == [491]
+    assert sorted(records[0]["vehicles"]) == [77, 157] and -1 in records[0]["areas"]
+    assert "v77 lane 1 s= 454.14" in out and "collision events: 1" in out
 
 
 def test_released_reference_geometry_and_streams() -> None:

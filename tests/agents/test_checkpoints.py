@@ -135,6 +135,18 @@ def test_shipped_pretrained_policies_load():
         assert a.shape == (2, k) and np.all(np.abs(a) <= 3), kind
 
 
+def test_pretrained_policies_take_a_given_checkpoint_per_kind():
+    from mivecc_agents.policies import pretrained_path, pretrained_policies
+
+    # the default model's edge in place of the released model's, the released cloud kept
+    edge = pretrained_path("edge", "paper")
+    pols = pretrained_policies("released", edge=edge)
+    assert pols["edge"].checkpoint == str(edge)
+    assert pols["cloud"].checkpoint == str(pretrained_path("cloud", "released"))
+    with pytest.raises(Exception, match="cloud"):  # a checkpoint of the wrong kind
+        pretrained_policies("released", cloud=edge)
+
+
 def test_evaluation_with_a_checkpoint_is_deterministic():
     """Same shipped checkpoints and seed -> identical metrics for EE and EEC."""
     from mivecc_agents.evaluation import evaluate_scheme
