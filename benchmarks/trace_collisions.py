@@ -80,6 +80,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--edge", default=None, help="edge checkpoint (default: the shipped one)")
     p.add_argument("--cloud", default=None, help="cloud checkpoint (default: the shipped one)")
     args = p.parse_args(argv)
+    if args.scheme == "E" and (args.edge or args.cloud):
+        p.error("--edge / --cloud: only with --scheme EE or EEC (E runs the rules alone)")
 
     policies = (pretrained_policies(args.model, edge=args.edge, cloud=args.cloud)
                 if args.scheme != "E" else {})

@@ -167,6 +167,12 @@ def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixtu
     assert "v1389 lane 5 s= 152.32" in out and "collision events: 1" in out
 
 
+def test_trace_collisions_refuses_a_checkpoint_for_the_rules_alone() -> None:
+    with pytest.raises(SystemExit) as exc:
+        trace_collisions.main(["--scheme", "E", "--edge", "edge.pt"])
+    assert exc.value.code == 2
+
+
 @pytest.mark.slow
 def test_trace_collisions_eec_finds_the_documented_event(
         capsys: pytest.CaptureFixture[str]) -> None:
