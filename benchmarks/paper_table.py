@@ -11,6 +11,9 @@ and seeds of a (grid, scheme) run as one batch of environments
   signalized baseline next to the paper's Table (3x3),
 * ``velocity_vs_density_<grid>.png`` - average travel velocity vs density per scheme with the
   upper bound,
+* ``gains_<grid>.png`` - the gains in per cent vs density, paired by seed, in average travel
+  and released-style velocity: each scheme over MiVeCC-E and EEC over EE, the paper's values
+  (3x3) marked,
 * a learned cloud runs with the ``cloud_period`` recorded in its checkpoint (the ``EEC+3``
   ceiling's constant cloud decides every step),
 * in ``paper_table.md`` also, per grid: the released-style velocity (entry to 5 m past the last
@@ -210,20 +213,33 @@ def near_miss_table(rows: list[dict[str, Any]], grid: str) -> str:
     return "\n".join(lines)
 
 
-def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = None) -> None:
-    """Average travel velocity vs density per scheme, with the upper bound; with the per-seed
-    ``rows``, a second panel: each scheme's gain over MiVeCC-E [%], paired by seed (mean and
-    standard deviation over seeds, and every seed as a dot). NaN (no data) leaves a gap."""
+#: Fixed colour of each scheme in every figure (matplotlib's default cycle, in SCHEMES order).
+COLOURS = {s: f"C{i}" for i, s in enumerate(SCHEMES)}
+
+#: Panels of the gains figure: (base scheme, schemes compared with it, the paper's rows marked
+#: as scheme -> name in PAPER_3X3).
+GAIN_PANELS: tuple[tuple[str, tuple[str, ...], dict[str, str]], ...] = (
+    ("E", ("EE", "EEC", "EE+3"), {"EE": "EE vs E", "EEC": "EEC vs E"}),
+    ("EE", ("EEC", "EEC+3"), {"EEC": "EEC vs EE"}),
+)
+
+#: Velocity metrics of the gains figure: (CSV key, name).
+GAIN_METRICS = (("avg_travel_velocity_mps", "average travel velocity"),
+                ("released_velocity_mps", "released-style velocity"))
+
+
+def plot(mean: dict, grid: str, path: Path) -> None:
+    """Average travel velocity vs density per scheme (mean ± sd over seeds), with the upper
+    bound."""
     from matplotlib.figure import Figure
 
-    gains = _gains_over_e(rows, grid) if rows else {}
-    fig = Figure(figsize=(8, 9.5 if gains else 4.5))
-    ax = fig.add_subplot(2, 1, 1) if gains else fig.add_subplot()
+    fig = Figure(figsize=(8, 4.5))
+    ax = fig.add_subplot()
     schemes = sorted({s for s, _ in mean}, key=SCHEMES.index)
     for s in schemes:
         ds = sorted(d for t, d in mean if t == s)
         ax.errorbar(ds, [mean[(s, d)]["v"] for d in ds], yerr=[mean[(s, d)]["v_sd"] for d in ds],
-                    marker="o", capsize=3, label=_label(s),
+                    marker="o", capsize=3, label=_label(s), color=COLOURS[s],
                     linestyle="--" if s in CEILINGS else "-")
     ds = sorted({d for _, d in mean})
     ax.plot(ds, [mean[(schemes[0], d)]["ub"] for d in ds], "k--", label="upper bound")
@@ -232,33 +248,58 @@ def plot(mean: dict, grid: str, path: Path, rows: list[dict[str, Any]] | None = 
     ax.set_title(f"Average travel velocity vs density, {grid} grid")
     ax.grid(alpha=0.3)
     ax.legend()
-    if gains:
-        gx = fig.add_subplot(2, 1, 2, sharex=ax)
-        colours = {s: line.get_color() for s, line in zip(
-            schemes, [c.lines[0] for c in ax.containers], strict=True)}
-        for s, per_d in gains.items():
-            ds = sorted(per_d)
-            m = [float(np.mean(per_d[d])) for d in ds]
-            sd = [float(np.std(per_d[d])) for d in ds]
-            gx.errorbar(ds, m, yerr=sd, marker="o", capsize=3, color=colours.get(s),
-                        linestyle="--" if s in CEILINGS else "-",
-                        label=f"{_label(s)} (mean ± sd over seeds)")
-            for d in ds:
-                gx.plot([d] * len(per_d[d]), per_d[d], ".", color=colours.get(s), alpha=0.4)
-        if grid == "3x3":  # the paper's Table eff_imp_rate, marked
-            for s, name in (("EE", "EE vs E"), ("EEC", "EEC vs E")):
-                if s in gains:
-                    gx.plot(list(DENSITIES), [PAPER_3X3[name][d] for d in DENSITIES], "x",
-                            markersize=9, mew=2, color=colours.get(s),
-                            label=f"paper: MiVeCC-{s} vs E")
-        gx.axhline(0.0, color="k", lw=0.8)
-        gx.set_xlabel("density [veh/lane/h]")
-        gx.set_ylabel("gain over MiVeCC-E [%]")
-        gx.set_title("Average travel velocity gain over MiVeCC-E, paired by seed (dots)")
-        gx.grid(alpha=0.3)
-        gx.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+
+
+def plot_gains(rows: list[dict[str, Any]], grid: str, path: Path) -> bool:
+    """Gains in per cent vs density, paired by seed: one row of panels per velocity metric
+    (average travel velocity; the released-style velocity when the runs have it), left each
+    scheme over MiVeCC-E, right EEC over EE; mean ± sd over seeds, every seed a dot, the
+    paper's Table values (3x3) as crosses. Returns False (and writes nothing) when no pair of
+    runs can be compared."""
+    from matplotlib.figure import Figure
+
+    metrics = [(key, name) for key, name in GAIN_METRICS
+               if any(_paired_gains(rows, grid, key, base, compared)
+                      for base, compared, _ in GAIN_PANELS)]
+    if not metrics:
+        return False
+    height = 4.8 * len(metrics) + 1.0  # [in]; the last inch holds the legend
+    fig = Figure(figsize=(13, height))
+    axes = fig.subplots(len(metrics), len(GAIN_PANELS), squeeze=False, sharex=True)
+    for m, ((key, name), row_axes) in enumerate(zip(metrics, axes, strict=True)):
+        for (base, compared, paper), ax in zip(GAIN_PANELS, row_axes, strict=True):
+            gains = _paired_gains(rows, grid, key, base, compared)
+            for s, per_d in gains.items():
+                ds = sorted(per_d)
+                ax.errorbar(ds, [float(np.mean(per_d[d])) for d in ds],
+                            yerr=[float(np.std(per_d[d])) for d in ds], marker="o", capsize=3,
+                            color=COLOURS[s], linestyle="--" if s in CEILINGS else "-",
+                            label=f"{_label(s)} (mean ± sd over seeds)")
+                for d in ds:
+                    ax.plot([d] * len(per_d[d]), per_d[d], ".", color=COLOURS[s], alpha=0.4)
+            if grid == "3x3":
+                for s, table_row in paper.items():
+                    if s in gains:
+                        ax.plot(list(DENSITIES), [PAPER_3X3[table_row][d] for d in DENSITIES],
+                                "x", markersize=9, mew=2, color=COLOURS[s],
+                                label=f"paper: MiVeCC-{table_row}")
+            ax.axhline(0.0, color="k", lw=0.8)
+            if m == len(metrics) - 1:
+                ax.set_xlabel("density [veh/lane/h]")
+            ax.set_ylabel(f"gain over MiVeCC-{base} [%]")
+            ax.set_title(f"{name[0].upper()}{name[1:]}: gain over MiVeCC-{base}, {grid} grid")
+            ax.grid(alpha=0.3)
+    legend: dict[str, Any] = {}  # one legend for all panels, below them (no data hidden)
+    for ax in axes.flat:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(label, handle)
+    fig.legend(list(legend.values()), list(legend), loc="lower center", ncol=3, fontsize=9)
+    fig.suptitle("Paired by density and seed (dots: seeds)", fontsize=10)
+    fig.tight_layout(rect=(0, 1.0 / height, 1, 1))
+    fig.savefig(path, dpi=110)
+    return True
 
 
 def _label(scheme: str) -> str:
@@ -270,18 +311,20 @@ def _label(scheme: str) -> str:
     return f"MiVeCC-{scheme}"
 
 
-def _gains_over_e(rows: list[dict[str, Any]], grid: str) -> dict[str, dict[float, list[float]]]:
-    """``scheme -> density -> [gain over E of each seed, %]`` for EE/EEC and the ceilings (same
-    density + seed)."""
+def _paired_gains(rows: list[dict[str, Any]], grid: str, key: str = "avg_travel_velocity_mps",
+                  base: str = "E", compared: Sequence[str] = ("EE", "EEC", "EE+3", "EEC+3"),
+                  ) -> dict[str, dict[float, list[float]]]:
+    """``scheme -> density -> [gain of each seed over the base scheme's run, %]`` in metric
+    ``key``, for the ``compared`` schemes (pairs: same grid, density and seed; runs without
+    the metric, e.g. an old CSV's, are left out)."""
     r, c = (int(x) for x in grid.split("x"))
-    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
-    base = {(x["density"], x["seed"]): x["avg_travel_velocity_mps"]
-            for x in mine if x["scheme"] == "E"}
+    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c) and x.get(key) not in ("", None)]
+    reference = {(x["density"], x["seed"]): float(x[key]) for x in mine if x["scheme"] == base}
     out: dict[str, dict[float, list[float]]] = {}
     for x in mine:
-        key = (x["density"], x["seed"])
-        if x["scheme"] in ("EE", "EEC", "EE+3", "EEC+3") and key in base:
-            gain = improvement(x["avg_travel_velocity_mps"], base[key])
+        pair = (x["density"], x["seed"])
+        if x["scheme"] in compared and pair in reference:
+            gain = improvement(float(x[key]), reference[pair])
             out.setdefault(x["scheme"], {}).setdefault(x["density"], []).append(gain)
     return out
 
@@ -341,7 +384,8 @@ def main(argv: Sequence[str] | None = None) -> Path:
         extra = near_miss_table(rows, grid)
         if extra:
             parts += [extra, ""]
-        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png", rows)
+        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png")
+        plot_gains(rows, grid, args.out / f"gains_{grid}.png")
     (args.out / "paper_table.md").write_text("\n".join(parts))
     print("\n".join(parts))
     return args.out

@@ -43,6 +43,7 @@ def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
         rows = list(csv.DictReader(fh))
     assert {r["scheme"] for r in rows} == {"E", "EE"}
     assert (out / "velocity_vs_density_1x1.png").stat().st_size > 5000
+    assert (out / "gains_1x1.png").stat().st_size > 5000
     merged = paper_table.main(["--grids", "1x1", "--out", str(tmp_path / "b"), "--from-csv",
                                str(out / "paper_table.csv")])
     text = (merged / "paper_table.md").read_text()
