@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import csv
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,6 +110,35 @@ def test_resume_continues_frames(edge_run, tmp_path):
     ck = load_checkpoint(new)
     assert ck["frames"] == 300
     assert ck["updates"] > load_checkpoint(path)["updates"]
+
+
+def _logged_sigmas(out: Path) -> list[tuple[int, float]]:
+    """(frames, sigma) of every row of a run's train_log.csv."""
+    with open(out / "train_log.csv") as fh:
+        return [(int(row["frames"]), float(row["sigma"])) for row in csv.DictReader(fh)]
+
+
+def test_resume_lays_the_exploration_schedule_over_the_new_total(edge_run, tmp_path):
+    """A continuation starts at the schedule's sigma for the frames already done (documented
+    in docs/training.md, "Resume"); one level throughout when sigma_init == sigma_end."""
+    path, out = edge_run[0], edge_run[1]
+
+    def schedule(frames: int, total: int) -> float:  # linear over sigma_anneal_fraction
+        done = min(1.0, frames / (TINY.sigma_anneal_fraction * total))
+        return TINY.sigma_init + (TINY.sigma_end - TINY.sigma_init) * done
+
+    first = _logged_sigmas(out)
+    assert [s for _, s in first] == pytest.approx([schedule(f, 200) for f, _ in first], abs=1e-5)
+    assert first[-1][1] == pytest.approx(TINY.sigma_end, abs=1e-5)
+    train("edge", TINY, frames=400, rows=1, cols=1, densities=1500, seed=1,
+          out_dir=tmp_path / "grown", resume=path, progress=False)
+    grown = _logged_sigmas(tmp_path / "grown")
+    assert grown[0][0] == 300 and grown[0][1] > TINY.sigma_end  # above the first run's end
+    assert [s for _, s in grown] == pytest.approx([schedule(f, 400) for f, _ in grown], abs=1e-5)
+    level = TINY.replace(sigma_init=0.3, sigma_end=0.3)
+    train("edge", level, frames=400, rows=1, cols=1, densities=1500, seed=1,
+          out_dir=tmp_path / "level", resume=path, progress=False)
+    assert [s for _, s in _logged_sigmas(tmp_path / "level")] == pytest.approx([0.3, 0.3], abs=1e-5)
 
 
 def test_cloud_stage_keeps_edge_frozen(edge_run, tmp_path):
