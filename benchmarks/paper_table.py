@@ -260,17 +260,17 @@ def plot_gains(rows: list[dict[str, Any]], grid: str, path: Path) -> bool:
     runs can be compared."""
     from matplotlib.figure import Figure
 
-    metrics = [(key, name) for key, name in GAIN_METRICS
-               if any(_paired_gains(rows, grid, key, base, compared)
-                      for base, compared, _ in GAIN_PANELS)]
+    # per metric, the gains of each panel; a metric no run pair has gets no row
+    per_metric = {name: [_paired_gains(rows, grid, key, base, compared)
+                         for base, compared, _ in GAIN_PANELS] for key, name in GAIN_METRICS}
+    metrics = {name: panels for name, panels in per_metric.items() if any(panels)}
     if not metrics:
         return False
     height = 4.8 * len(metrics) + 1.0  # [in]; the last inch holds the legend
     fig = Figure(figsize=(13, height))
     axes = fig.subplots(len(metrics), len(GAIN_PANELS), squeeze=False, sharex=True)
-    for m, ((key, name), row_axes) in enumerate(zip(metrics, axes, strict=True)):
-        for (base, compared, paper), ax in zip(GAIN_PANELS, row_axes, strict=True):
-            gains = _paired_gains(rows, grid, key, base, compared)
+    for m, ((name, panels), row_axes) in enumerate(zip(metrics.items(), axes, strict=True)):
+        for (base, _, paper), gains, ax in zip(GAIN_PANELS, panels, row_axes, strict=True):
             for s, per_d in gains.items():
                 ds = sorted(per_d)
                 ax.errorbar(ds, [float(np.mean(per_d[d])) for d in ds],
