@@ -15,7 +15,10 @@ For each it prints the mean of ``Q(s, x) - Q(s, a)`` and the share of states whe
 positive. A critic whose ``Q(s, +3) - Q(s, a)`` is positive in most states points its actor
 towards +3 (the actor's step size then limits); one near zero or mixed has not resolved the
 effect of the cloud action (the critic limits). The deterministic policy gradient the actor
-follows is the slope ``dQ/da``; its component along "all columns up" is printed too.
+follows is the slope ``dQ/da``; its component along "all columns up" is printed too, and so
+are the actor's mean action and the shares of its actions at either bound (within
+:data:`AT_BOUND_MPS2`): a saturated actor sits at the bounds, and then what separates it from a
+constant +3 cloud is its share at -3, not the size of its positive actions.
 
 Usage (about 1 min on an idle 2-core machine):
     python benchmarks/cloud_critic_check.py --model released \
@@ -39,6 +42,8 @@ from mivecc_agents.networks import make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 
 ACTION_BOUND_MPS2 = 3.0
+#: An action this close to a bound counts as at the bound [m/s^2].
+AT_BOUND_MPS2 = 0.01
 
 
 def collect_states(
@@ -100,8 +105,15 @@ def critic_gaps(
     rows.append({"probe": "slope dQ/dc of a + c*1 [1/(m/s^2)]", "mean_gap": float(slope_up.mean()),
                  "share_positive": float((slope_up > 0).mean())})
     real = mask > 0
-    rows.append({"probe": "actor: mean action [m/s^2]", "mean_gap": float(a.numpy()[real].mean()),
-                 "share_positive": float((a.numpy()[real] > 0).mean())})
+    actions = a.numpy()[real]
+    rows.append({"probe": "actor: mean action [m/s^2]", "mean_gap": float(actions.mean()),
+                 "share_positive": float((actions > 0).mean())})
+    # how the actions spread: at a bound (a saturated, bang-bang actor) or between
+    for side, name in ((1.0, "+3"), (-1.0, "-3")):
+        at_bound = np.abs(actions - side * bound) <= AT_BOUND_MPS2
+        rows.append({"probe": f"actor: share of actions within {AT_BOUND_MPS2:g} of {name}",
+                     "mean_gap": float(at_bound.mean()),
+                     "share_positive": float(at_bound.mean())})
     rows.append({"probe": "critic: mean Q(s, a)", "mean_gap": float(q_a.mean()),
                  "share_positive": float((q_a > 0).float().mean())})
     return rows
@@ -149,7 +161,7 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     print(f"{len(obs)} states of {cloud} (cloud_period {period}), "
           f"{time.perf_counter() - t0:.0f} s")
     for r in rows:
-        print(f"  {r['probe']:38s} mean {r['mean_gap']:+.5f}  positive in "
+        print(f"  {r['probe']:44s} mean {r['mean_gap']:+.5f}  positive in "
               f"{100 * r['share_positive']:.0f} %")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"cloud_critic_check_{args.model}.md"

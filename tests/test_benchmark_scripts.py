@@ -101,6 +101,10 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     by_probe = {r["probe"]: r for r in rows}
     assert {"a + 1", "a - 1", "constant -3", "constant +0", "constant +3"} <= set(by_probe)
     assert all(0.0 <= r["share_positive"] <= 1.0 for r in rows)
+    up = by_probe["actor: share of actions within 0.01 of +3"]["mean_gap"]
+    down = by_probe["actor: share of actions within 0.01 of -3"]["mean_gap"]
+    positive = by_probe["actor: mean action [m/s^2]"]["share_positive"]
+    assert up <= positive and down <= 1.0 - positive  # at +3 is positive, at -3 is not
     text = (tmp_path / "cloud_critic_check_released.md").read_text()
     # 2 environments x (300 - 100) / 20 kept steps
     period = pretrained_policies("released")["cloud"].config["cloud_period"]
