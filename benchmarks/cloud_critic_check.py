@@ -38,12 +38,14 @@ import torch
 
 from mivecc_agents.checkpoints import load_checkpoint, network_variant
 from mivecc_agents.evaluation import evaluate_batch
-from mivecc_agents.networks import make_critic_net
+from mivecc_agents.networks import make_actor_net, make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 
 ACTION_BOUND_MPS2 = 3.0
 #: An action this close to a bound counts as at the bound [m/s^2].
 AT_BOUND_MPS2 = 0.01
+#: A pre-tanh output beyond this is saturated (the action's gradient 3 (1 - tanh^2) < 2e-4).
+SATURATED_Z = 5.0
 
 
 def collect_states(
@@ -119,6 +121,38 @@ def critic_gaps(
     return rows
 
 
+def actor_columns(cloud_path: Path, obs: np.ndarray, mask: np.ndarray) -> dict[str, Any]:
+    """How the checkpoint's actor acts per column (pick rank) over the kept states.
+
+    Returns a dict: ``saturated_share`` (share of the real columns' pre-tanh outputs ``z``
+    with ``|z| >`` :data:`SATURATED_Z`, where the action's gradient ``3 (1 - tanh(z)^2)`` is
+    below 2e-4), ``median_abs_z``, and the columns (0-based, among those real in some state)
+    whose action is within :data:`AT_BOUND_MPS2` of +3 in every state (``always_plus3``), of
+    -3 in every state (``always_minus3``), or neither (``state_dependent``).
+    """
+    ckpt = load_checkpoint(cloud_path, expected_kind="cloud")
+    with torch.random.fork_rng(devices=[]):
+        net = make_actor_net("cloud", variant=network_variant(ckpt))
+    net.load_state_dict(ckpt["actor"])
+    net.eval()
+    with torch.no_grad():
+        z = net.preactivation(torch.as_tensor(obs)).numpy()
+    action = ACTION_BOUND_MPS2 * np.tanh(z)
+    real = mask > 0
+    columns: dict[str, list[int]] = {"always_plus3": [], "always_minus3": [],
+                                     "state_dependent": []}
+    for j in np.flatnonzero(real.any(axis=0)):
+        a_j = action[real[:, j], j]
+        if np.all(a_j >= ACTION_BOUND_MPS2 - AT_BOUND_MPS2):
+            columns["always_plus3"].append(int(j))
+        elif np.all(a_j <= -ACTION_BOUND_MPS2 + AT_BOUND_MPS2):
+            columns["always_minus3"].append(int(j))
+        else:
+            columns["state_dependent"].append(int(j))
+    return {"saturated_share": float((np.abs(z[real]) > SATURATED_Z).mean()),
+            "median_abs_z": float(np.median(np.abs(z[real]))), **columns}
+
+
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", choices=("paper", "released"), default="released")
@@ -158,11 +192,20 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     obs, mask, period = collect_states(args.model, args.rows, args.cols, args.densities,
                                        args.seeds, args.steps, args.skip, args.every, cloud)
     rows = critic_gaps(cloud, obs, mask, args.shift, args.constants)
+    cols = actor_columns(cloud, obs, mask)
     print(f"{len(obs)} states of {cloud} (cloud_period {period}), "
           f"{time.perf_counter() - t0:.0f} s")
     for r in rows:
         print(f"  {r['probe']:44s} mean {r['mean_gap']:+.5f}  positive in "
               f"{100 * r['share_positive']:.0f} %")
+    col_lines = [
+        f"saturated pre-activations (|z| > {SATURATED_Z:g}): {100 * cols['saturated_share']:.1f} %"
+        f", median |z| {cols['median_abs_z']:.1f}",
+        *(f"{name} ({len(cols[name])} columns): {' '.join(map(str, cols[name])) or '-'}"
+          for name in ("always_plus3", "always_minus3", "state_dependent")),
+    ]
+    for line in col_lines:
+        print(f"  actor {line}")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"cloud_critic_check_{args.model}.md"
     lines = [
@@ -183,6 +226,9 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
     ]
     lines += [f"| {r['probe']} | {r['mean_gap']:+.5f} | {100 * r['share_positive']:.0f} % |"
               for r in rows]
+    lines += ["", "The actor per column (pick rank, 0-based; at a bound: within "
+              f"{AT_BOUND_MPS2:g} m/s^2 in every state):", ""]
+    lines += [f"- {line}" for line in col_lines]
     path.write_text("\n".join(lines) + "\n")
     print(f"wrote {path}")
     return rows

@@ -19,7 +19,7 @@ from torch import nn
 
 from mivecc_agents.presets import TrainPreset
 
-__all__ = ["DDPGLearner", "UpdateStats", "make_loss"]
+__all__ = ["DDPGLearner", "UpdateStats", "make_loss", "preactivation_penalty"]
 
 
 def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
@@ -36,6 +36,29 @@ def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
     )
     loss.make_value_estimator(ValueEstimators.TD0, gamma=gamma)
     return loss
+
+
+def preactivation_penalty(
+    net: Any, batch: Any, group: str, bound: float
+) -> torch.Tensor:
+    """Mean squared excess of the actor's pre-tanh outputs over ``bound``, real columns only.
+
+    ``mean over (sample, real column) of max(|z| - bound, 0)^2`` with ``z`` from
+    :meth:`mivecc_agents.networks.MiVeCCActorNet.preactivation` on the minibatch's observations.
+    Zero while every ``|z| <= bound``; added to the DDPG loss, it keeps the actor out of deep
+    tanh saturation, where its gradient vanishes and a column stays at a bound whatever the
+    critic says (measured on the shipped clouds: ``docs/training.md``).
+
+    Args:
+        net: The actor network (:class:`~mivecc_agents.networks.MiVeCCActorNet`).
+        batch: A replay minibatch with ``(group, "observation")`` and ``(group, "mask")``.
+        group: Agent group name.
+        bound: Largest ``|z|`` without penalty (3 * tanh(3) = 2.985 m/s^2).
+    """
+    z = net.preactivation(batch[group, "observation"])
+    mask = batch[group, "mask"].to(z.dtype)
+    excess = torch.relu(z.abs() - bound)
+    return (excess.square() * mask).sum() / mask.sum().clamp_min(1.0)
 
 
 @dataclass
@@ -116,8 +139,12 @@ class DDPGLearner:
         for _ in range(n):
             if should_stop is not None and should_stop():
                 break
-            out = self.loss(buffer.sample())
+            batch = buffer.sample()
+            out = self.loss(batch)
             total = out["loss_actor"] + out["loss_value"]
+            if p.actor_preact_bound is not None:
+                total = total + p.actor_preact_weight * preactivation_penalty(
+                    self.actor.module, batch, self.group, p.actor_preact_bound)
             self.optimizer.zero_grad(set_to_none=True)
             total.backward()
             if p.max_grad_norm is not None:

@@ -413,8 +413,17 @@ class MiVeCCActorNet(_ConvNode):
             Accelerations ``(..., K)`` [m/s^2] in [-3, 3]; exactly 0 in padded columns.
         """
         _check_columns("mask", mask, self.spec)
-        action = ACTION_SCALE_MPS2 * torch.tanh(self.mlp(self.features(observation)))
+        action = ACTION_SCALE_MPS2 * torch.tanh(self.preactivation(observation))
         return action * mask.to(action.dtype)
+
+    def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
+        """The last dense layer's output ``z`` (..., K), before ``action = 3 * tanh(z)``.
+
+        Where ``|z|`` is large the action sits at a bound and its gradient ``3 (1 - tanh(z)^2)``
+        vanishes: the actor stops learning there (the penalty of
+        :func:`mivecc_agents.learner.preactivation_penalty` keeps ``|z|`` bounded).
+        """
+        return self.mlp(self.features(observation))
 
 
 class MiVeCCCriticNet(_ConvNode):

@@ -90,6 +90,11 @@ class TrainPreset:
         eval_steps: Steps of each evaluation episode.
         eval_seeds: Evaluation seeds per density (seeds ``EVAL_SEED0, EVAL_SEED0 + 1, ...``,
             apart from the training seeds).
+        actor_preact_bound: Keep the actor's pre-tanh outputs ``z`` within this bound by adding
+            ``actor_preact_weight x`` the mean squared excess ``max(|z| - bound, 0)^2`` to the
+            loss (:func:`mivecc_agents.learner.preactivation_penalty`); ``None``: no penalty
+            (the released trainer; its clouds saturate, ``docs/training.md``).
+        actor_preact_weight: Weight of that penalty (>= 0).
     """
 
     name: str
@@ -120,6 +125,17 @@ class TrainPreset:
     eval_every_frames: int = 0
     eval_steps: int = 1500
     eval_seeds: int = 1
+    actor_preact_bound: float | None = None
+    actor_preact_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        bound = self.actor_preact_bound
+        if bound is not None and not (math.isfinite(bound) and bound > 0):
+            raise ValueError(f"actor_preact_bound: must be a finite number > 0 or none, "
+                             f"got {bound!r}")
+        if not (math.isfinite(self.actor_preact_weight) and self.actor_preact_weight >= 0):
+            raise ValueError(f"actor_preact_weight: must be a finite number >= 0, "
+                             f"got {self.actor_preact_weight!r}")
 
     def for_stage(self, stage: str) -> TrainPreset:
         """The preset as used in a stage (``cloud_changes`` applied in stage II; the raw edge

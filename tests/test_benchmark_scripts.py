@@ -106,6 +106,7 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     positive = by_probe["actor: mean action [m/s^2]"]["share_positive"]
     assert up <= positive and down <= 1.0 - positive  # at +3 is positive, at -3 is not
     text = (tmp_path / "cloud_critic_check_released.md").read_text()
+    assert "saturated pre-activations" in text and "always_minus3" in text
     # 2 environments x (300 - 100) / 20 kept steps
     period = pretrained_policies("released")["cloud"].config["cloud_period"]
     assert f"20 cloud states (cloud_period {period}) of the shipped released-model cloud" in text
@@ -119,6 +120,10 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     h = 1e-3
     fine = {r["probe"]: r["mean_gap"] for r in cloud_critic_check.critic_gaps(
         pretrained_path("cloud", "released"), obs, mask, h, [])}
+    cols = cloud_critic_check.actor_columns(pretrained_path("cloud", "released"), obs, mask)
+    listed = cols["always_plus3"] + cols["always_minus3"] + cols["state_dependent"]
+    assert sorted(listed) == list(np.flatnonzero(mask.any(axis=0)))  # a partition of the columns
+    assert 0.0 <= cols["saturated_share"] <= 1.0
     slope = fine["slope dQ/dc of a + c*1 [1/(m/s^2)]"]
     # (downwards: the actor's action may sit at the +3 bound, where "a + h" is clamped)
     assert fine[f"a - {h:g}"] == pytest.approx(-slope * h, rel=0.2, abs=1e-6)

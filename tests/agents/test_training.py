@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -240,3 +241,68 @@ def test_learner_restore_sets_the_restored_progress_learning_rates() -> None:
         warnings.simplefilter("error")
         restored.load_state_dict(source.state_dict())
     assert restored.lr() == pytest.approx((0.25 * TINY.lr_actor, 0.25 * TINY.lr_critic))
+
+
+def test_preactivation_penalty_counts_only_the_excess_of_real_columns() -> None:
+    from tensordict import TensorDict
+
+    from mivecc_agents.learner import preactivation_penalty
+
+    class Fixed(torch.nn.Module):  # an "actor" whose pre-activations are the observation's
+        def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
+            return observation
+
+    z = torch.tensor([[0.5, -4.0, 6.0], [3.0, -3.5, 100.0]])
+    mask = torch.tensor([[1.0, 1.0, 1.0], [1.0, 1.0, 0.0]])  # the 100 is padding
+    batch = TensorDict({("cloud", "observation"): z, ("cloud", "mask"): mask}, batch_size=[2])
+    # excesses over 3 of the five real columns: 0, 1, 3, 0, 0.5
+    expected = (1.0 + 9.0 + 0.25) / 5
+    assert preactivation_penalty(Fixed(), batch, "cloud", 3.0).item() == pytest.approx(expected)
+    assert preactivation_penalty(Fixed(), batch, "cloud", 200.0).item() == 0.0
+
+
+def test_preactivation_bound_pulls_a_saturated_actor_back() -> None:
+    """A saturated actor (|z| >> bound) is pulled towards the bound by the penalty, and left
+    saturated without it: the penalty's gradient reaches the actor through the learner."""
+    from tensordict import TensorDict
+    from torchrl.data import LazyTensorStorage, ReplayBuffer
+
+    from mivecc_agents.learner import DDPGLearner
+    from mivecc_agents.networks import make_actor, make_critic
+
+    def saturated_z(preset: Any) -> float:
+        torch.manual_seed(0)
+        actor, critic = make_actor("edge", "edge"), make_critic("edge", "edge")
+        with torch.no_grad():  # every column deep in saturation (z about +20)
+            actor.module.output_layer.bias.fill_(20.0)
+        learner = DDPGLearner(actor, critic, "edge", preset)
+        k = actor.module.spec.grid_size
+        data = TensorDict({
+            ("edge", "observation"): torch.rand(64, k, k, 3),
+            ("edge", "mask"): torch.ones(64, k),
+            ("edge", "action"): torch.zeros(64, k),
+            ("next", "edge", "observation"): torch.rand(64, k, k, 3),
+            ("next", "edge", "mask"): torch.ones(64, k),
+            ("next", "edge", "reward"): torch.zeros(64, 1),
+            ("next", "edge", "done"): torch.zeros(64, 1, dtype=torch.bool),
+            ("next", "edge", "terminated"): torch.zeros(64, 1, dtype=torch.bool),
+        }, batch_size=[64])
+        buffer = ReplayBuffer(storage=LazyTensorStorage(64), batch_size=32)
+        buffer.extend(data)
+        learner.update(buffer, 30)
+        with torch.no_grad():
+            return actor.module.preactivation(data["edge", "observation"]).mean().item()
+
+    base = TINY.replace(lr_actor=1e-2)
+    assert saturated_z(base) > 19.5  # tanh' ~ 1e-17: no gradient moves it
+    assert saturated_z(base.replace(actor_preact_bound=3.0, actor_preact_weight=1.0)) < 19.0
+
+
+@pytest.mark.parametrize("field, value", [("actor_preact_bound", 0.0),
+                                          ("actor_preact_bound", float("inf")),
+                                          ("actor_preact_weight", -1.0)])
+def test_preactivation_fields_are_checked(field: str, value: float) -> None:
+    from mivecc_agents.presets import preset_with
+
+    with pytest.raises(ValueError, match=field):
+        preset_with("released", {field: str(value)})
