@@ -53,7 +53,8 @@ def preactivation_penalty(
         net: The actor network (:class:`~mivecc_agents.networks.MiVeCCActorNet`).
         batch: A replay minibatch with ``(group, "observation")`` and ``(group, "mask")``.
         group: Agent group name.
-        bound: Largest ``|z|`` without penalty (3 * tanh(3) = 2.985 m/s^2).
+        bound: Largest ``|z|`` without penalty (with 3, the largest action without penalty
+            is ``3 tanh(3)`` = 2.985 m/s^2).
     """
     z = net.preactivation(batch[group, "observation"])
     mask = batch[group, "mask"].to(z.dtype)

@@ -40,6 +40,10 @@ def _train_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
         (["--density", "nan"], "--density: must be finite"),
         (["--set", "omega=2"], "omega: must be a number in [0.0, 1.0]"),
         (["--set", "k_edge=10"], "k_edge: the edge network reads K=15 state graphs, got 10"),
+        (["--preset-set", "actor_preact_bound=0"],
+         "actor_preact_bound: must be a finite number > 0 or none, got 0.0"),
+        (["--preset-set", "actor_preact_weight=-1"],
+         "actor_preact_weight: must be a finite number >= 0, got -1.0"),
     ],
 )
 def test_train_bad_option_is_one_line_exit_2(
