@@ -48,6 +48,11 @@ AT_BOUND_MPS2 = 0.01
 SATURATED_Z = 5.0
 
 
+def at_bound(actions: np.ndarray, sign: float) -> np.ndarray:
+    """Which ``actions`` [m/s^2] lie within :data:`AT_BOUND_MPS2` of the bound ``sign * 3``."""
+    return np.abs(actions - sign * ACTION_BOUND_MPS2) <= AT_BOUND_MPS2
+
+
 def collect_states(
     model: str, rows: int, cols: int, densities: Sequence[float], seeds: Sequence[int],
     steps: int, skip: int, every: int, cloud_path: Path,
@@ -111,11 +116,10 @@ def critic_gaps(
     rows.append({"probe": "actor: mean action [m/s^2]", "mean_gap": float(actions.mean()),
                  "share_positive": float((actions > 0).mean())})
     # how the actions spread: at a bound (a saturated, bang-bang actor) or between
-    for side, name in ((1.0, "+3"), (-1.0, "-3")):
-        at_bound = np.abs(actions - side * bound) <= AT_BOUND_MPS2
+    for sign, name in ((1.0, "+3"), (-1.0, "-3")):
+        share = float(at_bound(actions, sign).mean())
         rows.append({"probe": f"actor: share of actions within {AT_BOUND_MPS2:g} of {name}",
-                     "mean_gap": float(at_bound.mean()),
-                     "share_positive": float(at_bound.mean())})
+                     "mean_gap": share, "share_positive": share})
     rows.append({"probe": "critic: mean Q(s, a)", "mean_gap": float(q_a.mean()),
                  "share_positive": float((q_a > 0).float().mean())})
     return rows
@@ -143,9 +147,9 @@ def actor_columns(cloud_path: Path, obs: np.ndarray, mask: np.ndarray) -> dict[s
                                      "state_dependent": []}
     for j in np.flatnonzero(real.any(axis=0)):
         a_j = action[real[:, j], j]
-        if np.all(a_j >= ACTION_BOUND_MPS2 - AT_BOUND_MPS2):
+        if np.all(at_bound(a_j, 1.0)):
             columns["always_plus3"].append(int(j))
-        elif np.all(a_j <= -ACTION_BOUND_MPS2 + AT_BOUND_MPS2):
+        elif np.all(at_bound(a_j, -1.0)):
             columns["always_minus3"].append(int(j))
         else:
             columns["state_dependent"].append(int(j))
