@@ -15,6 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import cloud_critic_check
 import cloud_reward_check
 import comparison
+import critic_check
 import paper_table
 import released_reference
 import released_study
@@ -113,14 +114,15 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     # the gaps are real critic differences: a tiny shift moves Q by about slope x shift
     from mivecc_agents.policies import pretrained_path
 
-    obs, mask, period = cloud_critic_check.collect_states(
-        "released", 1, 1, [1500.0], [0], 200, 100, 25, pretrained_path("cloud", "released"))
+    obs, mask, period = critic_check.collect_states(
+        "cloud", "released", 1, 1, [1500.0], [0], 200, 100, 25,
+        pretrained_path("cloud", "released"))
     assert period == pretrained_policies("released")["cloud"].config["cloud_period"]
     assert obs.shape[1:] == (60, 60, 3) and len(obs) == len(mask) == 4
     h = 1e-3
-    fine = {r["probe"]: r["mean_gap"] for r in cloud_critic_check.critic_gaps(
-        pretrained_path("cloud", "released"), obs, mask, h, [])}
-    cols = cloud_critic_check.actor_columns(pretrained_path("cloud", "released"), obs, mask)
+    fine = {r["probe"]: r["mean_gap"] for r in critic_check.critic_gaps(
+        "cloud", pretrained_path("cloud", "released"), obs, mask, h, [])}
+    cols = critic_check.actor_columns("cloud", pretrained_path("cloud", "released"), obs, mask)
     listed = cols["always_plus3"] + cols["always_minus3"] + cols["state_dependent"]
     assert sorted(listed) == list(np.flatnonzero(mask.any(axis=0)))  # a partition of the columns
     assert 0.0 <= cols["saturated_share"] <= 1.0
@@ -128,6 +130,35 @@ def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     # (downwards: the actor's action may sit at the +3 bound, where "a + h" is clamped)
     assert fine[f"a - {h:g}"] == pytest.approx(-slope * h, rel=0.2, abs=1e-6)
     assert abs(slope * h) > 1e-6
+
+
+def test_critic_check_probes_an_edge_critic(tmp_path: Path) -> None:
+    from mivecc_agents.policies import pretrained_path
+
+    rows = critic_check.main(["--kind", "edge", "--model", "released", "--rows", "1", "--cols",
+                              "1", "--densities", "1500", "--seeds", "0", "--steps", "300",
+                              "--skip", "100", "--every", "20", "--out", str(tmp_path)])
+    by_probe = {r["probe"]: r for r in rows}
+    assert {"a + 1", "a - 1", "constant -3", "constant +0", "constant +3"} <= set(by_probe)
+    text = (tmp_path / "edge_critic_check_released.md").read_text()
+    assert text.startswith("Command: `python benchmarks/critic_check.py --kind edge --model "
+                           "released --rows 1")
+    assert "of the shipped released-model edge" in text and "decision slot" in text
+    # the edge's states are its graphs under MiVeCC-EE: one row per node with a decision
+    obs, mask, period = critic_check.collect_states(
+        "edge", "released", 1, 1, [1500.0], [0], 200, 100, 25,
+        pretrained_path("edge", "released"))
+    assert period is None
+    assert obs.shape[1:] == (15, 15, 3) and 0 < len(obs) == len(mask) <= 4
+    assert (mask.sum(axis=1) > 0).all()
+    cols = critic_check.actor_columns("edge", pretrained_path("edge", "released"), obs, mask)
+    listed = cols["always_plus3"] + cols["always_minus3"] + cols["state_dependent"]
+    assert sorted(listed) == list(np.flatnonzero(mask.any(axis=0)))
+    # a checkpoint of the other kind is refused with one line (exit 2)
+    for argv in (["--kind", "edge", "--cloud", "x.pt"], ["--model", "paper"]):
+        with pytest.raises(SystemExit) as exc:
+            critic_check.main([*argv, "--out", str(tmp_path)])
+        assert exc.value.code == 2
 
 
 @pytest.mark.parametrize("new, old, expected", [(11.0, 10.0, 10.0), (9.0, 10.0, -10.0)])
