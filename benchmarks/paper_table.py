@@ -19,6 +19,9 @@ and seeds of a (grid, scheme) run as one batch of environments
 * in ``paper_table.md`` also, per grid: the released-style velocity (entry to 5 m past the last
   intersection centre, no entry wait; its improvement rates) and the near-miss measures of
   every scheme (``mivecc_env.sim.near_miss``).
+* ``machine.json`` - the CPU, libraries and commit the runs were made on (a line of it heads
+  ``paper_table.md``): runs with a learned policy reproduce bit for bit on the same kind of CPU,
+  not across CPUs (``benchmarks/table_diff.py`` compares two tables).
 
 Usage (the full table; 168 episodes in 8 batches):
     python benchmarks/paper_table.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2
@@ -29,12 +32,14 @@ from __future__ import annotations
 import argparse
 import csv
 import itertools
+import json
 import multiprocessing as mp
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from machine_info import describe, machine_info
 from tqdm import tqdm
 
 SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
@@ -378,6 +383,10 @@ def main(argv: Sequence[str] | None = None) -> Path:
     command = "python benchmarks/paper_table.py " + " ".join(argv if argv is not None else
                                                               __import__("sys").argv[1:])
     parts = [f"Command: `{command.strip()}`", ""]
+    if not args.from_csv:  # runs with learned policies reproduce bit for bit on this CPU kind
+        machine = machine_info(with_torch=True)
+        (args.out / "machine.json").write_text(json.dumps(machine, indent=2) + "\n")
+        parts[1:1] = ["", f"Machine: {describe(machine)} (`machine.json`)."]
     for grid in args.grids:
         text, mean = summarise(rows, grid)
         parts += [text, ""]

@@ -48,14 +48,11 @@ from __future__ import annotations
 
 import argparse
 import csv
-import datetime as dt
 import functools
 import importlib.util
 import json
 import os
-import platform
 import shlex
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -86,16 +83,18 @@ CSV_FIELDS = (
 )  # fmt: skip
 
 
-def _load_sumo_reference() -> ModuleType:
-    """Import ``benchmarks/sumo_reference.py`` (the benchmarks folder is not a package)."""
-    spec = importlib.util.spec_from_file_location("sumo_reference", HERE / "sumo_reference.py")
+def _load_sibling(name: str) -> ModuleType:
+    """Import ``benchmarks/<name>.py`` (the benchmarks folder is not a package, and this
+    script is also loaded by file path, without the folder on ``sys.path``)."""
+    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
 
 
-sumo_reference = _load_sumo_reference()
+sumo_reference = _load_sibling("sumo_reference")
+machine_info = _load_sibling("machine_info").machine_info
 
 
 def batched_available() -> bool:
@@ -291,33 +290,6 @@ def markdown_tables(results: list[dict[str, Any]], ratio_rows: list[dict[str, An
                        f"(measured {f['measured_ratio']:.2f}x, need {f['required_ratio']:g}x)")
         lines.append(f"- Floor: {f['description']}: **{verdict}**")
     return "\n".join(lines)
-
-
-def machine_info() -> dict[str, Any]:
-    """Where and on what code the benchmark ran."""
-    def git(*args: str) -> str | None:
-        try:
-            return subprocess.run(["git", *args], cwd=HERE, capture_output=True, text=True,
-                                  check=True).stdout.strip()
-        except (OSError, subprocess.CalledProcessError):
-            return None
-
-    cpu = platform.processor() or None
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in fh
-                        if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
-    status = git("status", "--porcelain", "--untracked-files=no")
-    return {
-        "cpu": cpu, "cpu_count": os.cpu_count(),
-        "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-        "platform": platform.platform(), "python": platform.python_version(),
-        "numpy": np.__version__, "git_commit": git("rev-parse", "HEAD"),
-        "git_dirty": bool(status) if status is not None else None,
-        "date_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-    }  # fmt: skip
 
 
 def write_outputs(out: Path, document: dict[str, Any], text: str) -> list[Path]:

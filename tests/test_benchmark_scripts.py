@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -16,10 +17,12 @@ import cloud_critic_check
 import cloud_reward_check
 import comparison
 import critic_check
+import machine_info
 import paper_table
 import released_reference
 import released_study
 import rules_study
+import table_diff
 import trace_collisions
 
 from mivecc_agents.policies import pretrained_policies
@@ -45,11 +48,19 @@ def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
     assert {r["scheme"] for r in rows} == {"E", "EE"}
     assert (out / "velocity_vs_density_1x1.png").stat().st_size > 5000
     assert (out / "gains_1x1.png").stat().st_size > 5000
+    # the machine is recorded beside the runs (learned policies' runs depend on the CPU)
+    machine = json.loads((out / "machine.json").read_text())
+    assert machine["cpu_count"] >= 1 and machine["torch"] and machine["numpy"]
+    assert machine["policy_digests"] == machine_info.policy_digests()  # a pure function
+    assert set(machine["policy_digests"]) == {"paper/edge", "paper/cloud", "released/edge",
+                                              "released/cloud"}
+    assert "Machine: " in (out / "paper_table.md").read_text()
     merged = paper_table.main(["--grids", "1x1", "--out", str(tmp_path / "b"), "--from-csv",
                                str(out / "paper_table.csv")])
     text = (merged / "paper_table.md").read_text()
     assert "EE vs E [%]" in text and "| 1500 |" in text
     assert "E released-style v [m/s]" in text and "| EE | 1500 |" in text
+    assert "Machine: " not in text and not (merged / "machine.json").exists()
 
 
 def test_paper_table_later_csv_replaces_the_same_runs() -> None:
@@ -158,6 +169,35 @@ def test_critic_check_probes_an_edge_critic(tmp_path: Path) -> None:
     for argv in (["--kind", "edge", "--cloud", "x.pt"], ["--model", "paper"]):
         with pytest.raises(SystemExit) as exc:
             critic_check.main([*argv, "--out", str(tmp_path)])
+        assert exc.value.code == 2
+
+
+def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> None:
+    def run(scheme: str, seed: int, v: float, events: int = 0) -> dict:
+        return {"rows": 1, "cols": 1, "scheme": scheme, "density": 900, "seed": seed,
+                "avg_travel_velocity_mps": v, "released_velocity_mps": v + 1.0,
+                "collisions": events}
+
+    a = [run("E", 0, 10.0), run("E", 1, 10.0), run("EE", 0, 11.0), run("EE", 1, 11.0, 1)]
+    b = [run("E", 0, 10.0), run("E", 1, 10.0), run("EE", 0, 11.0), run("EE", 1, 12.0, 2)]
+    assert table_diff.identical_runs(a, b) == {"E": (2, 2), "EE": (1, 2)}
+    assert table_diff.gains(a, (1, 1), [900], "avg_travel_velocity_mps")["EE vs E"] == [10.0]
+    assert table_diff.gains(b, (1, 1), [900], "avg_travel_velocity_mps")["EE vs E"] == [15.0]
+    assert table_diff.events(b, "EE", (1, 1), [900]) == [2]
+    for name, rows in (("a.csv", a), ("b.csv", b)):
+        with open(tmp_path / name, "w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    text = table_diff.main([str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--names", "X",
+                            "Y", "--out", str(tmp_path / "diff.md")])
+    assert "| EE | 1 / 2 |" in text and "| EE vs E, Y | +15.00 | 5.00 |" in text
+    assert (tmp_path / "diff.md").read_text().startswith("Command: `python benchmarks/table_diff")
+    (tmp_path / "bad.csv").write_text("x,y\n1,2\n")
+    for argv in ([str(tmp_path / "a.csv"), str(tmp_path / "missing.csv")],
+                 [str(tmp_path / "bad.csv"), str(tmp_path / "a.csv")]):
+        with pytest.raises(SystemExit) as exc:
+            table_diff.main(argv)
         assert exc.value.code == 2
 
 

@@ -1,0 +1,141 @@
+"""Two runs of the paper table side by side: which runs are bit-identical, how the gains moved.
+
+Made for reruns on another machine (``docs/training.md``, "Reproducing these numbers on
+another CPU"): the rules-only schemes are expected to be identical, runs driven by a learned
+policy may not be (torch's CPU kernels round the networks' float32 outputs per CPU). For the
+runs both CSVs hold (same grid, scheme, density and seed) this prints and writes
+
+* per scheme, how many runs are identical in average travel velocity, released-style velocity
+  and strict collision events;
+* per grid and metric (average travel and released-style velocity), the gains EE vs E, EEC vs
+  EE and EEC vs E [%] per density (of the means over seeds, as ``paper_table.md`` computes
+  them) in either run, and the largest difference;
+* the strict collision events of E, EE and EEC per density (summed over seeds) in either run.
+
+Usage (seconds):
+    python benchmarks/table_diff.py docs/results/paper_table/paper_table.csv \\
+        docs/results/reproducibility/paper_table_amd_epyc.csv --names "Intel Xeon" "AMD EPYC" \\
+        --out docs/results/reproducibility/paper_table_diff.md
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from paper_table import RUN_KEY, _read_csv, improvement
+
+#: What must agree for two runs to count as identical (exact float equality).
+COMPARED = ("avg_travel_velocity_mps", "released_velocity_mps", "collisions")
+METRICS = {"avg_travel_velocity_mps": "average travel velocity",
+           "released_velocity_mps": "released-style velocity"}
+GAINS = (("EE", "E"), ("EEC", "EE"), ("EEC", "E"))
+EVENT_SCHEMES = ("E", "EE", "EEC")
+
+
+def _runs(rows: list[dict[str, Any]]) -> dict[tuple[Any, ...], dict[str, Any]]:
+    return {tuple(r[k] for k in RUN_KEY): r for r in rows}
+
+
+def identical_runs(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, tuple[int, int]]:
+    """``scheme -> (identical runs, runs in both)``."""
+    ra, rb = _runs(a), _runs(b)
+    out: dict[str, list[int]] = {}
+    for key in sorted(set(ra) & set(rb), key=str):
+        same = all(ra[key].get(m) == rb[key].get(m) for m in COMPARED)
+        count = out.setdefault(str(ra[key]["scheme"]), [0, 0])
+        count[0] += same
+        count[1] += 1
+    return {s: (c[0], c[1]) for s, c in out.items()}
+
+
+def _mean(rows: list[dict[str, Any]], scheme: str, grid: tuple[int, int], density: float,
+          key: str) -> float:
+    values = [float(r[key]) for r in rows if r["scheme"] == scheme
+              and (r["rows"], r["cols"]) == grid and r["density"] == density
+              and r.get(key) not in ("", None)]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def gains(rows: list[dict[str, Any]], grid: tuple[int, int], densities: Sequence[float],
+          key: str) -> dict[str, list[float]]:
+    """``"A vs B" -> [gain of A's mean over B's mean per density, %]`` (NaN where missing)."""
+    return {f"{x} vs {y}": [improvement(_mean(rows, x, grid, d, key), _mean(rows, y, grid, d, key))
+                            for d in densities] for x, y in GAINS}
+
+
+def events(rows: list[dict[str, Any]], scheme: str, grid: tuple[int, int],
+           densities: Sequence[float]) -> list[int]:
+    """Strict collision events of ``scheme`` per density, summed over seeds."""
+    return [int(sum(float(r["collisions"]) for r in rows if r["scheme"] == scheme
+                    and (r["rows"], r["cols"]) == grid and r["density"] == d))
+            for d in densities]
+
+
+def diff_markdown(a: list[dict[str, Any]], b: list[dict[str, Any]], names: Sequence[str]) -> str:
+    """The comparison as markdown (see the module doc)."""
+    na, nb = names
+    ra, rb = _runs(a), _runs(b)
+    common = [ra[k] for k in set(ra) & set(rb)]
+    lines = ["Runs identical in average travel velocity, released-style velocity and strict "
+             f"collision events, {na} against {nb}:", "",
+             "| scheme | identical / runs in both |", "|---|---|"]
+    lines += [f"| {s} | {i} / {n} |" for s, (i, n) in identical_runs(a, b).items()]
+    for grid in sorted({(r["rows"], r["cols"]) for r in common}):
+        densities = sorted({r["density"] for r in common if (r["rows"], r["cols"]) == grid})
+        head = "| | " + " | ".join(f"{d:g}" for d in densities) + " | largest difference |"
+        rule = "|---" * (len(densities) + 2) + "|"
+        for key, label in METRICS.items():
+            ga, gb = gains(a, grid, densities, key), gains(b, grid, densities, key)
+            lines += ["", f"{grid[0]}x{grid[1]}, gains in {label} [%]:", "", head, rule]
+            for name in ga:
+                if all(np.isnan(ga[name])) or all(np.isnan(gb[name])):
+                    continue
+                diff = np.nanmax(np.abs(np.subtract(ga[name], gb[name])))
+                for who, g in ((na, ga[name]), (nb, gb[name])):
+                    lines.append(f"| {name}, {who} | " + " | ".join(f"{x:+.2f}" for x in g)
+                                 + f" | {diff:.2f} |")
+        lines += ["", f"{grid[0]}x{grid[1]}, strict collision events summed over seeds:", "",
+                  head.replace(" largest difference |", " total |"), rule]
+        for scheme in EVENT_SCHEMES:
+            for who, rows in ((na, a), (nb, b)):
+                ev = events(rows, scheme, grid, densities)
+                lines.append(f"| {scheme}, {who} | " + " | ".join(map(str, ev))
+                             + f" | {sum(ev)} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> str:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("a", type=Path, help="a paper_table.csv")
+    parser.add_argument("b", type=Path, help="another paper_table.csv")
+    parser.add_argument("--names", nargs=2, default=["A", "B"], metavar=("A", "B"),
+                        help="what to call the two runs (e.g. their machines)")
+    parser.add_argument("--out", type=Path, default=None, help="also write the markdown here")
+    args = parser.parse_args(argv)
+    tables = []
+    for option, path in (("a", args.a), ("b", args.b)):
+        try:
+            rows = _read_csv(path)
+        except OSError as exc:
+            parser.error(f"{option}: cannot read {path}: {exc.strerror}")
+        missing = [k for k in (*RUN_KEY, *COMPARED) if rows and k not in rows[0]]
+        if not rows or missing:
+            parser.error(f"{option}: {path} is not a paper_table.csv (no runs, or no column "
+                         f"{', '.join(missing)})")
+        tables.append(rows)
+    text = diff_markdown(*tables, args.names)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(f"Command: `python benchmarks/table_diff.py {args.a} {args.b} "
+                            f"--names \"{args.names[0]}\" \"{args.names[1]}\" --out {args.out}`"
+                            "\n\n" + text)
+    print(text)
+    return text
+
+
+if __name__ == "__main__":
+    main()
