@@ -10,7 +10,8 @@ runs both CSVs hold (same grid, scheme, density and seed) this prints and writes
 * per grid and metric (average travel and released-style velocity), the gains EE vs E, EEC vs
   EE and EEC vs E [%] per density (of the means over seeds, as ``paper_table.md`` computes
   them) in either run, and the largest difference;
-* the strict collision events of E, EE and EEC per density (summed over seeds) in either run.
+* the strict collision events of E, EE and EEC (those in both) per density (summed over
+  seeds) in either run.
 
 Usage (seconds):
     python benchmarks/table_diff.py docs/results/paper_table/paper_table.csv \\
@@ -100,7 +101,8 @@ def diff_markdown(a: list[dict[str, Any]], b: list[dict[str, Any]], names: Seque
                                  + f" | {diff:.2f} |")
         lines += ["", f"{grid[0]}x{grid[1]}, strict collision events summed over seeds:", "",
                   head.replace(" largest difference |", " total |"), rule]
-        for scheme in EVENT_SCHEMES:
+        present = {str(r["scheme"]) for r in common if (r["rows"], r["cols"]) == grid}
+        for scheme in (s for s in EVENT_SCHEMES if s in present):
             for who, rows in ((na, a), (nb, b)):
                 ev = events(rows, scheme, grid, densities)
                 lines.append(f"| {scheme}, {who} | " + " | ".join(map(str, ev))

@@ -192,6 +192,7 @@ def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> 
     text = table_diff.main([str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--names", "X",
                             "Y", "--out", str(tmp_path / "diff.md")])
     assert "| EE | 1 / 2 |" in text and "| EE vs E, Y | +15.00 | 5.00 |" in text
+    assert "| EE, Y | 2 | 2 |" in text and "| EEC, " not in text  # no EEC runs: no EEC rows
     assert (tmp_path / "diff.md").read_text().startswith("Command: `python benchmarks/table_diff")
     (tmp_path / "bad.csv").write_text("x,y\n1,2\n")
     for argv in ([str(tmp_path / "a.csv"), str(tmp_path / "missing.csv")],
