@@ -42,14 +42,13 @@ import torch
 
 from mivecc_agents.checkpoints import load_checkpoint, network_variant
 from mivecc_agents.evaluation import evaluate_batch
+from mivecc_agents.learner import SATURATED_Z
 from mivecc_agents.networks import make_actor_net, make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 
 ACTION_BOUND_MPS2 = 3.0
 #: An action this close to a bound counts as at the bound [m/s^2].
 AT_BOUND_MPS2 = 0.01
-#: A pre-tanh output beyond this is saturated (the action's gradient 3 (1 - tanh^2) < 2e-4).
-SATURATED_Z = 5.0
 
 
 def at_bound(actions: np.ndarray, sign: float) -> np.ndarray:

@@ -19,7 +19,10 @@ from torch import nn
 
 from mivecc_agents.presets import TrainPreset
 
-__all__ = ["DDPGLearner", "UpdateStats", "make_loss", "preactivation_penalty"]
+__all__ = [
+    "SATURATED_Z", "DDPGLearner", "UpdateStats", "make_loss", "preactivation_penalty",
+    "saturated_share",
+]
 
 
 def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
@@ -60,6 +63,37 @@ def preactivation_penalty(
     mask = batch[group, "mask"].to(z.dtype)
     excess = torch.relu(z.abs() - bound)
     return (excess.square() * mask).sum() / mask.sum().clamp_min(1.0)
+
+
+#: A pre-tanh output beyond this is saturated: the action's gradient ``3 (1 - tanh(z)^2)`` is
+#: below 2e-4, so the critic can no longer move that column.
+SATURATED_Z = 5.0
+
+#: Rows :func:`saturated_share` looks at, at most (evenly spaced over the ones given).
+SATURATION_ROWS = 512
+
+
+@torch.no_grad()
+def saturated_share(net: Any, observation: torch.Tensor, mask: torch.Tensor) -> float:
+    """Share of the real columns whose pre-tanh output has ``|z| >`` :data:`SATURATED_Z`.
+
+    Args:
+        net: The actor network (:class:`~mivecc_agents.networks.MiVeCCActorNet`).
+        observation / mask: ``(..., K, K, 3)`` graphs and ``(..., K)`` masks; at most
+            :data:`SATURATION_ROWS` rows, evenly spaced, are evaluated.
+
+    Returns:
+        The share in [0, 1], NaN if no column is real.
+    """
+    k = mask.shape[-1]
+    obs = observation.reshape(-1, *observation.shape[-3:])
+    real = mask.reshape(-1, k) > 0
+    step = max(1, -(-obs.shape[0] // SATURATION_ROWS))
+    obs, real = obs[::step], real[::step]
+    if not bool(real.any()):
+        return math.nan
+    z = net.preactivation(obs)
+    return float((z.abs() > SATURATED_Z)[real].float().mean())
 
 
 @dataclass

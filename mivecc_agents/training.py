@@ -42,7 +42,13 @@ from mivecc_agents.checkpoints import (
     save_checkpoint,
 )
 from mivecc_agents.exploration import make_exploration
-from mivecc_agents.learner import DDPGLearner, UpdateStats, make_loss
+from mivecc_agents.learner import (
+    SATURATED_Z,
+    DDPGLearner,
+    UpdateStats,
+    make_loss,
+    saturated_share,
+)
 from mivecc_agents.macro_steps import cloud_macro_transitions
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
@@ -217,7 +223,8 @@ def _fmt_density(d: float) -> str:
 
 def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None) -> Path:
     """Plot average travel velocity [m/s] vs frames per density from the CSV log: the running
-    value of the current episode (thin) and the value at each episode's end (dots)."""
+    value of the current episode (thin) and the value at each episode's end (dots); the
+    losses; and, where the log has it, the share of the actor's saturated outputs [%]."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -227,7 +234,8 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
     png_path = Path(png_path) if png_path else csv_path.with_suffix(".png")
     with csv_path.open() as fh:
         rows = list(csv.DictReader(fh))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    saturation = bool(rows) and "actor_saturated" in rows[0]  # not in older runs' logs
+    fig, axes = plt.subplots(1, 3 if saturation else 2, figsize=(16 if saturation else 11, 4))
     if rows:
         frames = [float(r["frames"]) for r in rows]
         ecols = [c for c in rows[0] if c.startswith("episode_velocity_mps_d")]
@@ -251,6 +259,13 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
     axes[1].set_ylabel("loss [-]")
     axes[1].set_yscale("symlog")
     axes[1].legend()
+    if saturation:
+        share = [100 * float(r["actor_saturated"] or "nan") for r in rows]
+        axes[2].plot([float(r["frames"]) for r in rows], share, "o-", lw=1.0, ms=2)
+        axes[2].set_xlabel("environment frames [steps]")
+        axes[2].set_ylabel(f"actor outputs with |z| > {SATURATED_Z:g} [%]")
+        axes[2].set_ylim(-2, 102)
+        axes[2].set_title("saturated actor outputs (real columns)")
     fig.tight_layout()
     fig.savefig(png_path, dpi=100)
     plt.close(fig)
@@ -681,18 +696,15 @@ def _train(
         "lr_actor",
         "lr_critic",
         "sigma",
+        "actor_saturated",
         "updates",
         "fps_collect",
         "fps_optim",
         "buffer",
         "wall_s",
     ]
-    write_header = not (resume is not None and not warm and csv_path.exists())
-    fh = csv_path.open("w" if write_header else "a", newline="")
-    writer = csv.DictWriter(fh, fieldnames=fields)
-    if write_header:
-        writer.writeheader()
-        fh.flush()
+    append_logs = resume is not None and not warm and csv_path.exists()  # continuing a run
+    fh, writer = open_log(csv_path, fields, append=append_logs)
     tb = _tensorboard_writer(out_dir)
 
     ckpt_path = out_dir / f"{stage}.pt"
@@ -730,7 +742,7 @@ def _train(
         )
 
     evaluate = _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {},
-                                    out_dir, edge_ckpt_path, append=not write_header)
+                                    out_dir, edge_ckpt_path, append=append_logs)
     next_eval, last_eval = state["frames"], None
 
     def _maybe_evaluate(final: bool = False) -> None:
@@ -807,6 +819,8 @@ def _train(
                         wall_s=time.perf_counter() - t0,
                         batch_size=p.batch_size,
                     )
+                    metrics["actor_saturated"] = saturated_share(
+                        actor.module, data[group, "observation"], data[group, "mask"])
                     episodes = int(metrics["episodes"])
                     writer.writerow(metrics)
                     fh.flush()
@@ -927,6 +941,30 @@ def _summary_entry(nxt: TensorDictBase, group: str, key: str) -> torch.Tensor:
             return value
     shape = nxt[group, "reward"].shape[:-1]
     return torch.full(shape, math.nan)
+
+
+def open_log(path: Path, fields: Sequence[str], append: bool) -> tuple[Any, csv.DictWriter]:
+    """Open a CSV log for writing rows of ``fields``: a new file with its header, or (with
+    ``append`` and an existing file) the file to continue. A file written with other columns
+    (an earlier version's run being resumed) is first rewritten with ``fields`` as its header,
+    its rows kept (blank where they lack a column; columns no longer written are dropped)."""
+    if append and path.exists():
+        with path.open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            old_fields, rows = reader.fieldnames or [], list(reader)
+        if list(old_fields) != list(fields):
+            with path.open("w", newline="") as fh:
+                rewrite = csv.DictWriter(fh, fieldnames=list(fields), restval="",
+                                         extrasaction="ignore")
+                rewrite.writeheader()
+                rewrite.writerows(rows)
+        fh = path.open("a", newline="")
+        return fh, csv.DictWriter(fh, fieldnames=list(fields))
+    fh = path.open("w", newline="")
+    writer = csv.DictWriter(fh, fieldnames=list(fields))
+    writer.writeheader()
+    fh.flush()
+    return fh, writer
 
 
 def _metrics(

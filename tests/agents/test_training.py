@@ -70,8 +70,50 @@ def test_edge_stage_trains(edge_run):
         "avg_velocity_mps_d1500",
         "episode_velocity_mps_d1500",
         "reward_mean",
+        "actor_saturated",
     ):
         assert col in header
+    with open(out / "train_log.csv") as fh:
+        shares = [float(row["actor_saturated"]) for row in csv.DictReader(fh)]
+    # NaN while the network is still empty (no decision vehicle in the iteration's states)
+    assert any(0.0 <= x <= 1.0 for x in shares)
+    assert all(0.0 <= x <= 1.0 or math.isnan(x) for x in shares)
+
+
+def test_saturated_share_counts_real_columns_beyond_the_bound() -> None:
+    from mivecc_agents.learner import SATURATED_Z, saturated_share
+
+    class Fixed(torch.nn.Module):  # pre-activations given per column
+        def __init__(self, z: list[float]) -> None:
+            super().__init__()
+            self.z = torch.tensor(z)
+
+        def preactivation(self, obs: torch.Tensor) -> torch.Tensor:
+            return self.z.expand(obs.shape[0], -1)
+
+    net = Fixed([SATURATED_Z + 1, -(SATURATED_Z + 1), 0.0, 100.0])
+    obs = torch.zeros(10, 4, 4, 3)
+    mask = torch.tensor([1.0, 1.0, 1.0, 0.0]).expand(10, -1)  # the 100 is padding
+    assert saturated_share(net, obs, mask) == pytest.approx(2 / 3)
+    assert math.isnan(saturated_share(net, obs, torch.zeros(10, 4)))
+
+
+def test_open_log_continues_and_extends_an_older_header(tmp_path: Path) -> None:
+    from mivecc_agents.training import open_log
+
+    path = tmp_path / "train_log.csv"
+    path.write_text("iteration,frames,gone\n1,100,x\n2,200,y\n")
+    fh, writer = open_log(path, ["iteration", "frames", "actor_saturated"], append=True)
+    writer.writerow({"iteration": 3, "frames": 300, "actor_saturated": 0.5})
+    fh.close()
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["frames"] for r in rows] == ["100", "200", "300"]  # old rows kept
+    assert [r["actor_saturated"] for r in rows] == ["", "", "0.5"]
+    assert "gone" not in rows[0]
+    fh, writer = open_log(path, ["iteration"], append=False)  # a new run: a new file
+    fh.close()
+    assert path.read_text() == "iteration\n"
 
 
 def test_checkpoint_roundtrip_actions(edge_run):
