@@ -43,7 +43,7 @@ import torch
 from mivecc_agents.checkpoints import load_checkpoint, network_variant
 from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.learner import SATURATED_Z
-from mivecc_agents.networks import make_actor_net, make_critic_net
+from mivecc_agents.networks import make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 
 ACTION_BOUND_MPS2 = 3.0
@@ -148,11 +148,7 @@ def actor_columns(kind: str, path: Path, obs: np.ndarray, mask: np.ndarray) -> d
     whose action is within :data:`AT_BOUND_MPS2` of +3 in every state (``always_plus3``), of
     -3 in every state (``always_minus3``), or neither (``state_dependent``).
     """
-    ckpt = load_checkpoint(path, expected_kind=kind)
-    with torch.random.fork_rng(devices=[]):
-        net = make_actor_net(kind, variant=network_variant(ckpt))
-    net.load_state_dict(ckpt["actor"])
-    net.eval()
+    net = load_policy(path, expected_kind=kind).net
     with torch.no_grad():
         z = net.preactivation(torch.as_tensor(obs)).numpy()
     action = ACTION_BOUND_MPS2 * np.tanh(z)

@@ -38,21 +38,17 @@ def _git(*args: str) -> str | None:
 def _cpuinfo() -> tuple[str | None, list[str]]:
     """The CPU's model name and which of :data:`ISA_FLAGS` it has (Linux; else what
     ``platform`` knows and no flags)."""
-    name = platform.processor() or None
-    flags: list[str] = []
+    fields: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
+            for line in fh:  # the first CPU's entries
                 key, _, value = line.partition(":")
-                if key.strip() == "model name" and name in (None, platform.processor()):
-                    name = value.strip()
-                elif key.strip() == "flags":
-                    have = set(value.split())
-                    flags = [f for f in ISA_FLAGS if f in have]
-                    break
+                fields.setdefault(key.strip(), value.strip())
     except OSError:
         pass
-    return name, flags
+    have = set(fields.get("flags", "").split())
+    return (fields.get("model name") or platform.processor() or None,
+            [f for f in ISA_FLAGS if f in have])
 
 
 def policy_digests() -> dict[str, str]:

@@ -90,7 +90,8 @@ def actor_policy(net: torch.nn.Module, kind: str) -> Policy:
     """A deterministic numpy policy calling an actor network (no gradients).
 
     The network is used as it is, not copied: a policy made during training acts with the
-    weights of the moment it is called. Carries ``.kind`` and ``.grid_size``.
+    weights of the moment it is called. Carries ``.kind``, ``.grid_size`` and ``.net`` (the
+    network itself, e.g. for its pre-tanh outputs).
     """
     k = net.spec.grid_size
 
@@ -108,6 +109,7 @@ def actor_policy(net: torch.nn.Module, kind: str) -> Policy:
 
     policy.kind = kind  # type: ignore[attr-defined]
     policy.grid_size = k  # type: ignore[attr-defined]
+    policy.net = net  # type: ignore[attr-defined]
     return policy
 
 
