@@ -87,7 +87,7 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     return out
 
 
-def _read_csv(path: Path) -> list[dict[str, Any]]:
+def read_runs_csv(path: Path) -> list[dict[str, Any]]:
     """Rows of an earlier run's CSV with the numeric columns parsed."""
     def parse(value: str) -> Any:
         try:
@@ -366,7 +366,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
                          args.edge, args.cloud, args.model, args.cloud_period))
     if args.from_csv:
-        rows = merge_runs([_read_csv(path) for path in args.from_csv])
+        rows = merge_runs([read_runs_csv(path) for path in args.from_csv])
     elif args.workers > 1:
         with mp.get_context("spawn").Pool(args.workers) as pool:
             batches = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="batches"))

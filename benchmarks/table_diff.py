@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from paper_table import RUN_KEY, _read_csv, improvement
+from paper_table import RUN_KEY, improvement, read_runs_csv
 
 #: What must agree for two runs to count as identical (exact float equality).
 COMPARED = ("avg_travel_velocity_mps", "released_velocity_mps", "collisions")
@@ -121,7 +121,7 @@ def main(argv: Sequence[str] | None = None) -> str:
     tables = []
     for option, path in (("a", args.a), ("b", args.b)):
         try:
-            rows = _read_csv(path)
+            rows = read_runs_csv(path)
         except OSError as exc:
             parser.error(f"{option}: cannot read {path}: {exc.strerror}")
         missing = [k for k in (*RUN_KEY, *COMPARED) if rows and k not in rows[0]]
