@@ -95,6 +95,10 @@ class TrainPreset:
             loss (:func:`mivecc_agents.learner.preactivation_penalty`); ``None``: no penalty
             (the released trainer; its clouds saturate, ``docs/training.md``).
         actor_preact_weight: Weight of that penalty (>= 0).
+        reward_shaping: ``"none"``: the env's reward; ``"potential"``: the trained group's
+            reward plus ``gamma Phi(s') - Phi(s)`` with ``Phi(s)`` = the reward's velocity
+            term in ``s`` / (1 - gamma) (:mod:`mivecc_agents.reward_shaping`: the same optimal
+            policies, without the speed level the critic would otherwise have to learn).
     """
 
     name: str
@@ -127,6 +131,7 @@ class TrainPreset:
     eval_seeds: int = 1
     actor_preact_bound: float | None = None
     actor_preact_weight: float = 1.0
+    reward_shaping: Literal["none", "potential"] = "none"
 
     def __post_init__(self) -> None:
         bound = self.actor_preact_bound

@@ -52,6 +52,7 @@ from mivecc_agents.learner import (
 from mivecc_agents.macro_steps import cloud_macro_transitions
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
+from mivecc_agents.reward_shaping import potential_keys, shape_rewards
 
 __all__ = [
     "GROUPS",
@@ -669,6 +670,8 @@ def _train(
 
     # --- replay buffer, sized on purpose ---------------------------------------------------
     keys = _buffer_keys(group)
+    shaping = p.reward_shaping == "potential"
+    collect_keys = keys + potential_keys(group) if shaping else keys
     with torch.no_grad():
         sample = probe.rollout(1, policy)
     probe.close()
@@ -790,10 +793,12 @@ def _train(
                     state["frames"] += n
                     state["iteration"] += 1
                     if cloud_period > 1:
-                        buffer.extend(cloud_macro_transitions(data, cloud_period, keys)
-                                      .reshape(-1))
+                        batch = cloud_macro_transitions(data, cloud_period, collect_keys)
                     else:
-                        buffer.extend(data.select(*keys).reshape(-1))
+                        batch = data.select(*collect_keys)
+                    if shaping:  # sets a new reward tensor: the logs below keep the raw one
+                        batch = shape_rewards(batch, group, p.gamma)
+                    buffer.extend(batch.select(*keys).reshape(-1))
                     if noise is not None:
                         noise.step(n)
                     stats = UpdateStats()
