@@ -134,6 +134,11 @@ class TrainPreset:
     reward_shaping: Literal["none", "potential"] = "none"
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.gamma) and 0.0 <= self.gamma <= 1.0):
+            raise ValueError(f"gamma: must be a number in [0, 1], got {self.gamma!r}")
+        if self.reward_shaping == "potential" and self.gamma == 1.0:
+            raise ValueError("reward_shaping: 'potential' needs gamma < 1 (its potential is "
+                             "the velocity term / (1 - gamma)), got gamma 1.0")
         bound = self.actor_preact_bound
         if bound is not None and not (math.isfinite(bound) and bound > 0):
             raise ValueError(f"actor_preact_bound: must be a finite number > 0 or none, "

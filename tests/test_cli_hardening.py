@@ -44,6 +44,9 @@ def _train_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
          "actor_preact_bound: must be a finite number > 0 or none, got 0.0"),
         (["--preset-set", "actor_preact_weight=-1"],
          "actor_preact_weight: must be a finite number >= 0, got -1.0"),
+        (["--preset-set", "gamma=1.5"], "gamma: must be a number in [0, 1], got 1.5"),
+        (["--preset-set", "reward_shaping=potential", "gamma=1"],
+         "reward_shaping: 'potential' needs gamma < 1"),
     ],
 )
 def test_train_bad_option_is_one_line_exit_2(
