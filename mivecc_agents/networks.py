@@ -76,6 +76,8 @@ __all__ = [
     "NetworkSpec",
     "NetworkVariant",
     "NodeKind",
+    "PerPickActorNet",
+    "PerPickCriticNet",
     "count_parameters",
     "get_network_spec",
     "make_actor",
@@ -89,8 +91,10 @@ NodeKind = Literal["edge", "cloud"]
 """Which coordinator a network belongs to."""
 
 ConvActivation = Literal["relu", "tanh"]
-NetworkVariant = Literal["paper", "released"]
 """Activation after each convolution of the actor (the critic's are always ReLU)."""
+NetworkVariant = Literal["paper", "released", "per_pick"]
+"""Network family: the paper's table, the authors' released code, or one network shared by
+every column (:class:`PerPickActorNet`, :class:`PerPickCriticNet`)."""
 
 ACTION_SCALE_MPS2: float = 3.0
 """Actor output scale [m/s^2]: ``action = 3 * tanh(.)`` lies in [-3, 3] m/s^2."""
@@ -131,11 +135,14 @@ class NetworkSpec:
             [-]; checked against the geometry in ``__post_init__``.
         actor_layers: Output sizes of the actor's dense layers; the last equals ``grid_size``.
         critic_layers: Output sizes of the critic's dense layers; the last is 1.
-        variant: ``"paper"`` (the table above) or ``"released"`` (the authors' released
+        variant: ``"paper"`` (the table above), ``"released"`` (the authors' released
             networks: a LayerNorm over the input graph, over the flattened convolution
             features and after every hidden dense layer of actor and critic, tanh after the
             actor's convolutions, every dense weight and bias drawn in +-3e-3, and the
-            released critic widths 96-96-48-24-1 / 512-256-64-1; :func:`get_network_spec`).
+            released critic widths 96-96-48-24-1 / 512-256-64-1; :func:`get_network_spec`)
+            or ``"per_pick"`` (:class:`PerPickActorNet`: no convolutions, one MLP shared by
+            every column; ``actor_layers`` then ends with K for the K columns of one output
+            each, and the convolution fields are unused).
     """
 
     kind: NodeKind
@@ -240,7 +247,10 @@ RELEASED_CRITIC_LAYERS: dict[str, tuple[int, ...]] = {
     "edge": (96, 96, 48, 24, 1),
     "cloud": (512, 256, 64, 1),
 }
-NETWORK_VARIANTS: tuple[str, ...] = ("paper", "released")
+#: Hidden widths of the per-pick networks (one small MLP applied to every column).
+PER_PICK_ACTOR_HIDDEN: tuple[int, ...] = (256, 128)
+PER_PICK_CRITIC_HIDDEN: tuple[int, ...] = (256, 128, 64)
+NETWORK_VARIANTS: tuple[str, ...] = ("paper", "released", "per_pick")
 
 
 def get_network_spec(kind: NodeKind, variant: NetworkVariant = "paper") -> NetworkSpec:
@@ -264,6 +274,11 @@ def get_network_spec(kind: NodeKind, variant: NetworkVariant = "paper") -> Netwo
         ) from None
     if variant == "paper":
         return spec
+    if variant == "per_pick":  # the convolution fields stay (unused): K and C still apply
+        return dataclasses.replace(
+            spec, actor_layers=(*PER_PICK_ACTOR_HIDDEN, spec.grid_size),
+            critic_layers=(*PER_PICK_CRITIC_HIDDEN, 1), variant="per_pick",
+        )
     if variant != "released":
         raise ValueError(f"network variant: must be one of {NETWORK_VARIANTS}, got {variant!r}")
     return dataclasses.replace(
@@ -476,6 +491,107 @@ class MiVeCCCriticNet(_ConvNode):
         return self.mlp(torch.cat([features, masked_action], dim=-1))
 
 
+def _column_inputs(observation: torch.Tensor, spec: NetworkSpec) -> torch.Tensor:
+    """Each column's view as one flat vector: ``(..., K, K, C) -> (..., K, K * C)``.
+
+    Column j of a state graph is decision vehicle j: row 0 the vehicle itself, rows 1..K-1 its
+    nearest reference vehicles. The result's row j is that column, rows in order, channels
+    innermost.
+    """
+    _check_observation(observation, spec)
+    k, _, c = spec.observation_shape
+    return observation.transpose(-3, -2).reshape(*observation.shape[:-3], k, k * c)
+
+
+class PerPickActorNet(nn.Module):
+    """Actor sharing one MLP over the columns: column j's view -> vehicle j's acceleration.
+
+    ``column (K * 3) -> [Linear -> LayerNorm -> tanh] * n_hidden -> Linear(1) -> 3 * tanh``,
+    the same weights for every column, so the action of a vehicle depends on what its column
+    shows (itself and its nearest vehicles), not on its rank among the picks. Permuting the
+    columns permutes the actions.
+
+    Args:
+        spec: A ``"per_pick"`` spec (:func:`get_network_spec`).
+        device: Device of the parameters.
+    """
+
+    def __init__(self, spec: NetworkSpec, *, device: torch.device | str | None = None) -> None:
+        super().__init__()
+        self.spec = spec
+        k, _, c = spec.observation_shape
+        self.mlp = MLP(
+            in_features=k * c, out_features=1, num_cells=list(spec.actor_hidden),
+            activation_class=nn.Tanh, device=device, **_hidden_norms(spec.actor_hidden),
+        )
+        _init_actor_output(self.mlp, generator=None)
+
+    @property
+    def output_layer(self) -> nn.Linear:
+        """The last dense layer (initialised in +-3e-3)."""
+        return _last_linear(self.mlp)
+
+    def forward(self, observation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Accelerations ``(..., K)`` [m/s^2] in [-3, 3]; exactly 0 in padded columns.
+
+        Args:
+            observation: State graphs ``(..., K, K, 3)``, channel-last.
+            mask: Real columns ``(..., K)``, bool or float (1 = vehicle, 0 = padding).
+        """
+        _check_columns("mask", mask, self.spec)
+        action = ACTION_SCALE_MPS2 * torch.tanh(self.preactivation(observation))
+        return action * mask.to(action.dtype)
+
+    def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
+        """The last dense layer's output ``z`` (..., K), before ``action = 3 * tanh(z)``."""
+        return self.mlp(_column_inputs(observation, self.spec)).squeeze(-1)
+
+
+class PerPickCriticNet(nn.Module):
+    """Critic summing per-column terms: ``Q(s, a) = mean over real columns j of q(column_j, a_j)``.
+
+    ``q: [column (K * 3), a_j / 3] -> [Linear -> LayerNorm -> ReLU] * n_hidden -> Linear(1)``,
+    one MLP for every column (a value decomposition over the picks, as VDN does over agents).
+    Each transition then trains q on up to K (column, action) pairs, and the actor's gradient
+    for vehicle j, ``dq(column_j, a_j) / da_j``, depends only on that vehicle's own view. A
+    state with no real column has value 0.
+
+    Args:
+        spec: A ``"per_pick"`` spec (:func:`get_network_spec`).
+        device: Device of the parameters.
+    """
+
+    def __init__(self, spec: NetworkSpec, *, device: torch.device | str | None = None) -> None:
+        super().__init__()
+        self.spec = spec
+        k, _, c = spec.observation_shape
+        self.mlp = MLP(
+            in_features=k * c + 1, out_features=1, num_cells=list(spec.critic_hidden),
+            activation_class=nn.ReLU, device=device, **_hidden_norms(spec.critic_hidden),
+        )
+
+    def forward(
+        self, observation: torch.Tensor, action: torch.Tensor, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """State-action values ``(..., 1)``; padded columns' actions are ignored.
+
+        Args:
+            observation: State graphs ``(..., K, K, 3)``, channel-last.
+            action: Accelerations ``(..., K)`` [m/s^2].
+            mask: Real columns ``(..., K)``, bool or float (1 = vehicle, 0 = padding).
+        """
+        _check_columns("action", action, self.spec)
+        _check_columns("mask", mask, self.spec)
+        columns = _column_inputs(observation, self.spec)
+        real = mask.to(action.dtype)
+        scaled = (action * real / ACTION_SCALE_MPS2).unsqueeze(-1)
+        batch_shape = torch.broadcast_shapes(columns.shape[:-1], scaled.shape[:-1])
+        inputs = torch.cat([columns.expand(*batch_shape, columns.shape[-1]),
+                            scaled.expand(*batch_shape, 1)], dim=-1)
+        q = self.mlp(inputs).squeeze(-1) * real
+        return (q.sum(-1) / real.sum(-1).clamp(min=1.0)).unsqueeze(-1)
+
+
 def _last_linear(module: nn.Module) -> nn.Linear:
     """Return the last ``nn.Linear`` of a module (in registration order)."""
     linears = [m for m in module.modules() if isinstance(m, nn.Linear)]
@@ -490,7 +606,7 @@ def _hidden_norms(hidden: Sequence[int]) -> dict[str, object]:
             "norm_kwargs": [{"normalized_shape": n} for n in hidden]}
 
 
-def _init_dense(net: _ConvNode, generator: torch.Generator | None) -> None:
+def _init_dense(net: nn.Module, generator: torch.Generator | None) -> None:
     """Dense-layer init of a network: the paper variant draws only the actor's last layer in
     +-3e-3 (DDPG); the released variant draws every dense weight and bias in +-3e-3."""
     if net.spec.variant != "released":
@@ -555,7 +671,7 @@ def make_actor_net(
     conv_activation: ConvActivation = "relu",
     device: torch.device | str | None = None,
     variant: NetworkVariant = "paper",
-) -> MiVeCCActorNet:
+) -> MiVeCCActorNet | PerPickActorNet:
     """Build the actor network of a node kind.
 
     Args:
@@ -563,18 +679,24 @@ def make_actor_net(
         generator: If given, every parameter is re-drawn from it (same seed, same weights) and
             the global random state is left untouched; otherwise PyTorch's global RNG is used.
         conv_activation: Activation after each convolution, ``"relu"`` (default) or ``"tanh"``
-            (the released variant always uses tanh).
+            (the released variant always uses tanh; the per-pick one has no convolutions).
         device: Device of the parameters.
-        variant: ``"paper"`` or ``"released"`` (:class:`NetworkSpec`).
+        variant: ``"paper"``, ``"released"`` or ``"per_pick"`` (:class:`NetworkSpec`).
 
     Returns:
         ``forward(observation (..., K, K, 3), mask (..., K)) -> action (..., K)`` [m/s^2].
     """
     spec = get_network_spec(kind, variant)
-    if generator is None:
+
+    def build() -> MiVeCCActorNet | PerPickActorNet:
+        if variant == "per_pick":
+            return PerPickActorNet(spec, device=device)
         return MiVeCCActorNet(spec, conv_activation=conv_activation, device=device)
+
+    if generator is None:
+        return build()
     with torch.random.fork_rng(devices=[]):
-        net = MiVeCCActorNet(spec, conv_activation=conv_activation, device=device)
+        net = build()
     reset_parameters(net, generator)
     _init_dense(net, generator)
     return net
@@ -586,7 +708,7 @@ def make_critic_net(
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
     variant: NetworkVariant = "paper",
-) -> MiVeCCCriticNet:
+) -> MiVeCCCriticNet | PerPickCriticNet:
     """Build the critic network of a node kind.
 
     Args:
@@ -594,16 +716,17 @@ def make_critic_net(
         generator: If given, every parameter is re-drawn from it (same seed, same weights) and
             the global random state is left untouched; otherwise PyTorch's global RNG is used.
         device: Device of the parameters.
-        variant: ``"paper"`` or ``"released"`` (:class:`NetworkSpec`).
+        variant: ``"paper"``, ``"released"`` or ``"per_pick"`` (:class:`NetworkSpec`).
 
     Returns:
         ``forward(observation (..., K, K, 3), action (..., K), mask (..., K)) -> value (..., 1)``.
     """
     spec = get_network_spec(kind, variant)
+    critic_class = PerPickCriticNet if variant == "per_pick" else MiVeCCCriticNet
     if generator is None:
-        return MiVeCCCriticNet(spec, device=device)
+        return critic_class(spec, device=device)
     with torch.random.fork_rng(devices=[]):
-        net = MiVeCCCriticNet(spec, device=device)
+        net = critic_class(spec, device=device)
     reset_parameters(net, generator)
     if variant == "released":
         _init_dense(net, generator)

@@ -78,8 +78,9 @@ class TrainPreset:
         continuous: One continuing simulation per environment, episodes are chunks of
             ``episode_steps`` (truncation without reset); ``False``: every episode starts
             from an empty network.
-        network: Network variant, ``"paper"`` (the paper's table) or ``"released"``
-            (:class:`mivecc_agents.networks.NetworkSpec`).
+        network: Network variant, ``"paper"`` (the paper's table), ``"released"`` or
+            ``"per_pick"`` (one MLP shared by every column;
+            :class:`mivecc_agents.networks.NetworkSpec`).
         env_overrides: Env config fields the preset sets for training, as ``(name, value)``
             pairs (reward form, training-time edge selection); explicit ``--set`` wins.
         cloud_changes: Fields that differ in stage II, as ``(name, value)`` pairs
@@ -123,7 +124,7 @@ class TrainPreset:
     exploration: Literal["per_column", "scalar", "none"] = "per_column"
     raw_edge_period: int = 0
     continuous: bool = False
-    network: Literal["paper", "released"] = "paper"
+    network: Literal["paper", "released", "per_pick"] = "paper"
     env_overrides: tuple[tuple[str, Any], ...] = ()
     cloud_changes: tuple[tuple[str, Any], ...] = ()
     eval_every_frames: int = 0
