@@ -25,6 +25,7 @@ from mivecc_agents.networks import (
 )
 
 KINDS = ("edge", "cloud")
+VARIANTS = ("paper", "released", "per_pick")
 LEADING_DIMS = ((), (4,), (2, 9))
 
 
@@ -193,11 +194,12 @@ def test_actor_conv_activation_option() -> None:
 # --------------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("batch", LEADING_DIMS)
-def test_shapes(kind: str, batch: tuple[int, ...]) -> None:
+def test_shapes(kind: str, batch: tuple[int, ...], variant: str) -> None:
     spec = NETWORK_SPECS[kind]
-    actor, critic = make_actor_net(kind), make_critic_net(kind)
+    actor, critic = make_actor_net(kind, variant=variant), make_critic_net(kind, variant=variant)
     obs = _observation(spec, batch)
     mask = _mask(spec, batch, spec.action_dim)
     action = actor(obs, mask)
@@ -205,11 +207,12 @@ def test_shapes(kind: str, batch: tuple[int, ...]) -> None:
     assert critic(obs, action, mask).shape == (*batch, 1)
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
-def test_leading_dims_are_independent(kind: str) -> None:
+def test_leading_dims_are_independent(kind: str, variant: str) -> None:
     # Flattening the leading dims must not mix samples: (2, 3) equals six single calls.
     spec = NETWORK_SPECS[kind]
-    actor, critic = make_actor_net(kind), make_critic_net(kind)
+    actor, critic = make_actor_net(kind, variant=variant), make_critic_net(kind, variant=variant)
     obs = _observation(spec, (2, 3))
     mask = _mask(spec, (2, 3), spec.action_dim)
     action = actor(obs, mask)
@@ -231,30 +234,33 @@ def test_actor_within_bounds_even_when_saturated() -> None:
     assert action.abs().max() > 0.9 * ACTION_SCALE_MPS2
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
-def test_actor_last_layer_init(kind: str) -> None:
-    layer = make_actor_net(kind).output_layer
+def test_actor_last_layer_init(kind: str, variant: str) -> None:
+    layer = make_actor_net(kind, variant=variant).output_layer
     assert layer.weight.abs().max() <= ACTOR_FINAL_INIT_BOUND
     assert layer.bias.abs().max() <= ACTOR_FINAL_INIT_BOUND
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("mask_dtype", [torch.float32, torch.bool])
-def test_actor_zero_in_padded_columns(kind: str, mask_dtype: torch.dtype) -> None:
+def test_actor_zero_in_padded_columns(kind: str, mask_dtype: torch.dtype, variant: str) -> None:
     spec = NETWORK_SPECS[kind]
     n_real = spec.action_dim // 3
-    actor = make_actor_net(kind)
+    actor = make_actor_net(kind, variant=variant)
     mask = _mask(spec, (2, 4), n_real).to(mask_dtype)
     action = actor(_observation(spec, (2, 4)), mask)
     assert torch.equal(action[..., n_real:], torch.zeros_like(action[..., n_real:]))
     assert (action[..., :n_real] != 0).all()
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
-def test_padded_columns_give_no_actor_gradient(kind: str) -> None:
+def test_padded_columns_give_no_actor_gradient(kind: str, variant: str) -> None:
     spec = NETWORK_SPECS[kind]
     n_real = 5
-    actor = make_actor_net(kind)
+    actor = make_actor_net(kind, variant=variant)
     action = actor(_observation(spec, (3,)), _mask(spec, (3,), n_real))
     action[..., n_real:].sum().backward()
     for p in actor.parameters():
@@ -262,11 +268,12 @@ def test_padded_columns_give_no_actor_gradient(kind: str) -> None:
         assert torch.count_nonzero(p.grad) == 0
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
-def test_critic_ignores_padded_actions(kind: str) -> None:
+def test_critic_ignores_padded_actions(kind: str, variant: str) -> None:
     spec = NETWORK_SPECS[kind]
     n_real = 7
-    critic = make_critic_net(kind)
+    critic = make_critic_net(kind, variant=variant)
     obs = _observation(spec, (2, 3))
     mask = _mask(spec, (2, 3), n_real).bool()
     gen = torch.Generator().manual_seed(1)
@@ -366,27 +373,30 @@ def _same_weights(a: nn.Module, b: nn.Module) -> bool:
     return sa.keys() == sb.keys() and all(torch.equal(sa[k], sb[k]) for k in sa)
 
 
+@pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("kind", KINDS)
-def test_generator_seeding(kind: str) -> None:
+def test_generator_seeding(kind: str, variant: str) -> None:
     def gen(seed: int) -> torch.Generator:
         return torch.Generator().manual_seed(seed)
 
     global_state = torch.get_rng_state()
-    actor_a = make_actor_net(kind, generator=gen(7))
-    actor_b = make_actor_net(kind, generator=gen(7))
-    critic_a = make_critic_net(kind, generator=gen(7))
-    critic_b = make_critic_net(kind, generator=gen(7))
+    actor_a = make_actor_net(kind, generator=gen(7), variant=variant)
+    actor_b = make_actor_net(kind, generator=gen(7), variant=variant)
+    critic_a = make_critic_net(kind, generator=gen(7), variant=variant)
+    critic_b = make_critic_net(kind, generator=gen(7), variant=variant)
     # A generator leaves the global random state untouched.
     assert torch.equal(torch.get_rng_state(), global_state)
     assert _same_weights(actor_a, actor_b)
     assert _same_weights(critic_a, critic_b)
-    assert not _same_weights(actor_a, make_actor_net(kind, generator=gen(8)))
-    assert not _same_weights(critic_a, make_critic_net(kind, generator=gen(8)))
+    assert not _same_weights(actor_a, make_actor_net(kind, generator=gen(8), variant=variant))
+    assert not _same_weights(critic_a, make_critic_net(kind, generator=gen(8), variant=variant))
     # The DDPG output init is kept under a generator.
     assert actor_a.output_layer.weight.abs().max() <= ACTOR_FINAL_INIT_BOUND
     # The wrappers forward the generator.
-    assert _same_weights(make_actor(kind, kind, generator=gen(7)).module, actor_a)
-    assert _same_weights(make_critic(kind, kind, generator=gen(7)).module, critic_a)
+    wrapped_actor = make_actor(kind, kind, generator=gen(7), variant=variant)
+    wrapped_critic = make_critic(kind, kind, generator=gen(7), variant=variant)
+    assert _same_weights(wrapped_actor.module, actor_a)
+    assert _same_weights(wrapped_critic.module, critic_a)
 
 
 def test_generator_init_matches_default_distribution() -> None:
