@@ -280,3 +280,10 @@ def test_shipped_policies_record_their_documented_training_settings():
     for (model, kind), settings in expected.items():
         config = pretrained_policies(model)[kind].config
         assert {k: config.get(k) for k in settings} == settings, (model, kind)
+    # the released model's cloud (session 15) has per-pick networks, the others the paper's
+    # or the released ones
+    from mivecc_agents.checkpoints import load_checkpoint, network_variant
+    from mivecc_agents.policies import pretrained_path
+
+    assert network_variant(load_checkpoint(pretrained_path("cloud", "released"))) == "per_pick"
+    assert network_variant(load_checkpoint(pretrained_path("edge", "released"))) == "released"
