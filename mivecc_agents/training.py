@@ -230,6 +230,7 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
 
     csv_path = Path(csv_path)
     png_path = Path(png_path) if png_path else csv_path.with_suffix(".png")
@@ -267,6 +268,9 @@ def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None
         axes[2].set_ylabel(f"actor outputs with |z| > {SATURATED_Z:g} [%]")
         axes[2].set_ylim(-2, 102)
         axes[2].set_title("saturated actor outputs (real columns)")
+    thousands = FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0")
+    for ax in axes:  # "150k", not "150000": full numbers overlap on three panels
+        ax.xaxis.set_major_formatter(thousands)
     fig.tight_layout()
     fig.savefig(png_path, dpi=100)
     plt.close(fig)
