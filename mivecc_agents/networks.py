@@ -372,7 +372,37 @@ class _ConvNode(nn.Module):
         return self.feature_norm(_conv_features(self.convs, x, self.spec))
 
 
-class MiVeCCActorNet(_ConvNode):
+class _SquashedActor:
+    """What every actor shares: ``action = 3 * tanh(preactivation) * mask`` and its output layer
+    (a mixin: the subclass supplies ``spec``, ``mlp`` and :meth:`preactivation`)."""
+
+    spec: NetworkSpec
+    mlp: nn.Module
+
+    def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    @property
+    def output_layer(self) -> nn.Linear:
+        """The last dense layer (initialised in +-3e-3)."""
+        return _last_linear(self.mlp)
+
+    def forward(self, observation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """Compute the accelerations of the decision vehicles.
+
+        Args:
+            observation: State graphs ``(..., K, K, 3)``, channel-last.
+            mask: Real columns ``(..., K)``, bool or float (1 = vehicle, 0 = padding).
+
+        Returns:
+            Accelerations ``(..., K)`` [m/s^2] in [-3, 3]; exactly 0 in padded columns.
+        """
+        _check_columns("mask", mask, self.spec)
+        action = ACTION_SCALE_MPS2 * torch.tanh(self.preactivation(observation))
+        return action * mask.to(action.dtype)
+
+
+class MiVeCCActorNet(_SquashedActor, _ConvNode):
     """Deterministic actor: state graph -> one acceleration [m/s^2] per column.
 
     ``observation (..., K, K, 3) -> convs -> flatten -> dense (tanh) ... -> 3 * tanh -> * mask``.
@@ -411,25 +441,6 @@ class MiVeCCActorNet(_ConvNode):
             **(_hidden_norms(spec.actor_hidden) if released else {}),
         )
         _init_dense(self, generator=None)
-
-    @property
-    def output_layer(self) -> nn.Linear:
-        """The last dense layer (initialised in +-3e-3)."""
-        return _last_linear(self.mlp)
-
-    def forward(self, observation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """Compute the accelerations of the decision vehicles.
-
-        Args:
-            observation: State graphs ``(..., K, K, 3)``, channel-last.
-            mask: Real columns ``(..., K)``, bool or float (1 = vehicle, 0 = padding).
-
-        Returns:
-            Accelerations ``(..., K)`` [m/s^2] in [-3, 3]; exactly 0 in padded columns.
-        """
-        _check_columns("mask", mask, self.spec)
-        action = ACTION_SCALE_MPS2 * torch.tanh(self.preactivation(observation))
-        return action * mask.to(action.dtype)
 
     def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
         """The last dense layer's output ``z`` (..., K), before ``action = 3 * tanh(z)``.
@@ -503,7 +514,7 @@ def _column_inputs(observation: torch.Tensor, spec: NetworkSpec) -> torch.Tensor
     return observation.transpose(-3, -2).reshape(*observation.shape[:-3], k, k * c)
 
 
-class PerPickActorNet(nn.Module):
+class PerPickActorNet(_SquashedActor, nn.Module):
     """Actor sharing one MLP over the columns: column j's view -> vehicle j's acceleration.
 
     ``column (K * 3) -> [Linear -> LayerNorm -> tanh] * n_hidden -> Linear(1) -> 3 * tanh``,
@@ -525,22 +536,6 @@ class PerPickActorNet(nn.Module):
             activation_class=nn.Tanh, device=device, **_hidden_norms(spec.actor_hidden),
         )
         _init_actor_output(self.mlp, generator=None)
-
-    @property
-    def output_layer(self) -> nn.Linear:
-        """The last dense layer (initialised in +-3e-3)."""
-        return _last_linear(self.mlp)
-
-    def forward(self, observation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """Accelerations ``(..., K)`` [m/s^2] in [-3, 3]; exactly 0 in padded columns.
-
-        Args:
-            observation: State graphs ``(..., K, K, 3)``, channel-last.
-            mask: Real columns ``(..., K)``, bool or float (1 = vehicle, 0 = padding).
-        """
-        _check_columns("mask", mask, self.spec)
-        action = ACTION_SCALE_MPS2 * torch.tanh(self.preactivation(observation))
-        return action * mask.to(action.dtype)
 
     def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
         """The last dense layer's output ``z`` (..., K), before ``action = 3 * tanh(z)``."""
