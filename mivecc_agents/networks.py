@@ -514,6 +514,17 @@ def _column_inputs(observation: torch.Tensor, spec: NetworkSpec) -> torch.Tensor
     return observation.transpose(-3, -2).reshape(*observation.shape[:-3], k, k * c)
 
 
+def _column_mlp(
+    spec: NetworkSpec, extra_inputs: int, hidden: Sequence[int],
+    activation: type[nn.Module], device: torch.device | str | None,
+) -> MLP:
+    """The per-pick MLP: one column (K x C values) plus ``extra_inputs`` -> ``hidden`` layers
+    (``Linear -> LayerNorm -> activation`` each) -> one output."""
+    k, _, c = spec.observation_shape
+    return MLP(in_features=k * c + extra_inputs, out_features=1, num_cells=list(hidden),
+               activation_class=activation, device=device, **_hidden_norms(hidden))
+
+
 class PerPickActorNet(_SquashedActor, nn.Module):
     """Actor sharing one MLP over the columns: column j's view -> vehicle j's acceleration.
 
@@ -530,11 +541,7 @@ class PerPickActorNet(_SquashedActor, nn.Module):
     def __init__(self, spec: NetworkSpec, *, device: torch.device | str | None = None) -> None:
         super().__init__()
         self.spec = spec
-        k, _, c = spec.observation_shape
-        self.mlp = MLP(
-            in_features=k * c, out_features=1, num_cells=list(spec.actor_hidden),
-            activation_class=nn.Tanh, device=device, **_hidden_norms(spec.actor_hidden),
-        )
+        self.mlp = _column_mlp(spec, 0, spec.actor_hidden, nn.Tanh, device)
         _init_actor_output(self.mlp, generator=None)
 
     def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
@@ -559,11 +566,7 @@ class PerPickCriticNet(nn.Module):
     def __init__(self, spec: NetworkSpec, *, device: torch.device | str | None = None) -> None:
         super().__init__()
         self.spec = spec
-        k, _, c = spec.observation_shape
-        self.mlp = MLP(
-            in_features=k * c + 1, out_features=1, num_cells=list(spec.critic_hidden),
-            activation_class=nn.ReLU, device=device, **_hidden_norms(spec.critic_hidden),
-        )
+        self.mlp = _column_mlp(spec, 1, spec.critic_hidden, nn.ReLU, device)
 
     def forward(
         self, observation: torch.Tensor, action: torch.Tensor, mask: torch.Tensor
