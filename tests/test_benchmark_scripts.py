@@ -259,14 +259,14 @@ def test_trace_collisions_refuses_a_checkpoint_for_the_rules_alone() -> None:
 def test_trace_collisions_eec_finds_the_documented_event(
         capsys: pytest.CaptureFixture[str]) -> None:
     # docs/training.md, "The released model's EEC events, traced": EEC with the released
-    # model's shipped policies, 2100, seed 1, step 491: a crossing pair, one of them more
-    # than 5 m past its last centre (on no control area, -1)
-    records = trace_collisions.main(["--scheme", "EEC", "--density", "2100", "--seed", "1",
-                                     "--steps", "492", "--history", "2"])
+    # model's shipped policies (session 15), 2100, seed 2, step 603: a crossing pair, one of
+    # them more than 5 m past its last centre (on no control area, -1)
+    records = trace_collisions.main(["--scheme", "EEC", "--density", "2100", "--seed", "2",
+                                     "--steps", "604", "--history", "2"])
     out = capsys.readouterr().out
-    assert [r["step"] for r in records] == [491]
-    assert sorted(records[0]["vehicles"]) == [77, 157] and -1 in records[0]["areas"]
-    assert "v77 lane 1 s= 454.14" in out and "collision events: 1" in out
+    assert [r["step"] for r in records] == [603]
+    assert sorted(records[0]["vehicles"]) == [209, 294] and -1 in records[0]["areas"]
+    assert "v294 lane 4 s= 155.05" in out and "collision events: 1" in out
 
 
 def test_released_reference_geometry_and_streams() -> None:
