@@ -550,7 +550,7 @@ class PerPickActorNet(_SquashedActor, nn.Module):
 
 
 class PerPickCriticNet(nn.Module):
-    """Critic summing per-column terms: ``Q(s, a) = mean over real columns j of q(column_j, a_j)``.
+    """Critic: ``Q(s, a) = mean over the real columns j of q(column_j, a_j)``.
 
     ``q: [column (K * 3), a_j / 3] -> [Linear -> LayerNorm -> ReLU] * n_hidden -> Linear(1)``,
     one MLP for every column (a value decomposition over the picks, as VDN does over agents).
