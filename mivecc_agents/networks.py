@@ -502,30 +502,31 @@ class MiVeCCCriticNet(_ConvNode):
         return self.mlp(torch.cat([features, masked_action], dim=-1))
 
 
-def _column_inputs(observation: torch.Tensor, spec: NetworkSpec) -> torch.Tensor:
-    """Each column's view as one flat vector: ``(..., K, K, C) -> (..., K, K * C)``.
+class _PerPickNode(nn.Module):
+    """Shared part of the per-pick actor and critic: one MLP applied to every column.
 
-    Column j of a state graph is decision vehicle j: row 0 the vehicle itself, rows 1..K-1 its
-    nearest reference vehicles. The result's row j is that column, rows in order, channels
-    innermost.
+    ``column (K x C values) + extra_inputs -> [Linear -> LayerNorm -> activation] * hidden ->
+    Linear(1)``; column j of a state graph is decision vehicle j (row 0 the vehicle itself,
+    rows 1..K-1 its nearest reference vehicles).
     """
-    _check_observation(observation, spec)
-    k, _, c = spec.observation_shape
-    return observation.transpose(-3, -2).reshape(*observation.shape[:-3], k, k * c)
+
+    def __init__(self, spec: NetworkSpec, hidden: Sequence[int], activation: type[nn.Module],
+                 extra_inputs: int, device: torch.device | str | None) -> None:
+        super().__init__()
+        self.spec = spec
+        k, _, c = spec.observation_shape
+        self.mlp = MLP(in_features=k * c + extra_inputs, out_features=1, num_cells=list(hidden),
+                       activation_class=activation, device=device, **_hidden_norms(hidden))
+
+    def columns(self, observation: torch.Tensor) -> torch.Tensor:
+        """Each column's view as one flat vector: ``(..., K, K, C) -> (..., K, K * C)``, rows in
+        order, channels innermost."""
+        _check_observation(observation, self.spec)
+        k, _, c = self.spec.observation_shape
+        return observation.transpose(-3, -2).reshape(*observation.shape[:-3], k, k * c)
 
 
-def _column_mlp(
-    spec: NetworkSpec, extra_inputs: int, hidden: Sequence[int],
-    activation: type[nn.Module], device: torch.device | str | None,
-) -> MLP:
-    """The per-pick MLP: one column (K x C values) plus ``extra_inputs`` -> ``hidden`` layers
-    (``Linear -> LayerNorm -> activation`` each) -> one output."""
-    k, _, c = spec.observation_shape
-    return MLP(in_features=k * c + extra_inputs, out_features=1, num_cells=list(hidden),
-               activation_class=activation, device=device, **_hidden_norms(hidden))
-
-
-class PerPickActorNet(_SquashedActor, nn.Module):
+class PerPickActorNet(_SquashedActor, _PerPickNode):
     """Actor sharing one MLP over the columns: column j's view -> vehicle j's acceleration.
 
     ``column (K * 3) -> [Linear -> LayerNorm -> tanh] * n_hidden -> Linear(1) -> 3 * tanh``,
@@ -539,17 +540,15 @@ class PerPickActorNet(_SquashedActor, nn.Module):
     """
 
     def __init__(self, spec: NetworkSpec, *, device: torch.device | str | None = None) -> None:
-        super().__init__()
-        self.spec = spec
-        self.mlp = _column_mlp(spec, 0, spec.actor_hidden, nn.Tanh, device)
-        _init_actor_output(self.mlp, generator=None)
+        super().__init__(spec, spec.actor_hidden, nn.Tanh, 0, device)
+        _init_dense(self, generator=None)
 
     def preactivation(self, observation: torch.Tensor) -> torch.Tensor:
         """The last dense layer's output ``z`` (..., K), before ``action = 3 * tanh(z)``."""
-        return self.mlp(_column_inputs(observation, self.spec)).squeeze(-1)
+        return self.mlp(self.columns(observation)).squeeze(-1)
 
 
-class PerPickCriticNet(nn.Module):
+class PerPickCriticNet(_PerPickNode):
     """Critic: ``Q(s, a) = mean over the real columns j of q(column_j, a_j)``.
 
     ``q: [column (K * 3), a_j / 3] -> [Linear -> LayerNorm -> ReLU] * n_hidden -> Linear(1)``,
@@ -564,9 +563,7 @@ class PerPickCriticNet(nn.Module):
     """
 
     def __init__(self, spec: NetworkSpec, *, device: torch.device | str | None = None) -> None:
-        super().__init__()
-        self.spec = spec
-        self.mlp = _column_mlp(spec, 1, spec.critic_hidden, nn.ReLU, device)
+        super().__init__(spec, spec.critic_hidden, nn.ReLU, 1, device)
 
     def forward(
         self, observation: torch.Tensor, action: torch.Tensor, mask: torch.Tensor
@@ -580,7 +577,7 @@ class PerPickCriticNet(nn.Module):
         """
         _check_columns("action", action, self.spec)
         _check_columns("mask", mask, self.spec)
-        columns = _column_inputs(observation, self.spec)
+        columns = self.columns(observation)
         real = mask.to(action.dtype)
         scaled = (action * real / ACTION_SCALE_MPS2).unsqueeze(-1)
         batch_shape = torch.broadcast_shapes(columns.shape[:-1], scaled.shape[:-1])
