@@ -268,7 +268,8 @@ def test_shipped_policies_record_their_documented_training_settings():
     # docs/training.md, "Shipped pretrained policies": every pair trained with the released
     # trainer; the released model's edge with SV weight 0.1 (session 9), the default model's
     # with the trainer's 1.0; both clouds decide every 10 steps.
-    from mivecc_agents.policies import pretrained_policies
+    from mivecc_agents.checkpoints import load_checkpoint, network_variant
+    from mivecc_agents.policies import pretrained_path, pretrained_policies
 
     expected = {
         ("paper", "edge"): {"model": "paper", "reward_sv_weight": 1.0},
@@ -280,10 +281,6 @@ def test_shipped_policies_record_their_documented_training_settings():
     for (model, kind), settings in expected.items():
         config = pretrained_policies(model)[kind].config
         assert {k: config.get(k) for k in settings} == settings, (model, kind)
-    # the released model's cloud (session 15) has per-pick networks, the others the paper's
-    # or the released ones
-    from mivecc_agents.checkpoints import load_checkpoint, network_variant
-    from mivecc_agents.policies import pretrained_path
-
+    # the released model's cloud (session 15) has per-pick networks, its edge the released ones
     assert network_variant(load_checkpoint(pretrained_path("cloud", "released"))) == "per_pick"
     assert network_variant(load_checkpoint(pretrained_path("edge", "released"))) == "released"
