@@ -281,6 +281,8 @@ def test_shipped_policies_record_their_documented_training_settings():
     for (model, kind), settings in expected.items():
         config = pretrained_policies(model)[kind].config
         assert {k: config.get(k) for k in settings} == settings, (model, kind)
-    # the released model's cloud (session 15) has per-pick networks, its edge the released ones
-    assert network_variant(load_checkpoint(pretrained_path("cloud", "released"))) == "per_pick"
+    # both clouds (released model: session 15, default model: session 16) have per-pick
+    # networks, the released model's edge the released ones
+    for model in ("paper", "released"):
+        assert network_variant(load_checkpoint(pretrained_path("cloud", model))) == "per_pick"
     assert network_variant(load_checkpoint(pretrained_path("edge", "released"))) == "released"
