@@ -6,7 +6,9 @@ without reaching their lane's end, their lane, position ``s`` [m], speed [m/s] a
 acceleration (``a`` of the table) [m/s^2] over the ``--history`` steps before the event (from
 ``Simulator.vehicle_table``). Scheme ``E`` runs the rules alone; ``EE`` / ``EEC`` run the
 model's shipped policies (a learned cloud at its checkpoint's ``cloud_period``), as
-``mivecc evaluate`` does, or the checkpoints given with ``--edge`` / ``--cloud``.
+``mivecc evaluate`` does, or the checkpoints given with ``--edge`` / ``--cloud``, on one torch
+thread like ``mivecc evaluate`` and ``paper_table.py`` (``--threads``), so its events are the
+table's.
 
 Examples (E: the events of ``docs/results/released_study.md``, "Traced collisions"; EEC: the
 shipped released pair's one event on the paper table's seeds, ``docs/training.md``):
@@ -22,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from mivecc_agents.cli import DEFAULT_EVAL_THREADS, set_inference_threads
 from mivecc_agents.evaluation import evaluate_scheme
 from mivecc_agents.policies import pretrained_policies
 
@@ -79,9 +82,17 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--history", type=int, default=30, help="steps printed before an event")
     p.add_argument("--edge", default=None, help="edge checkpoint (default: the shipped one)")
     p.add_argument("--cloud", default=None, help="cloud checkpoint (default: the shipped one)")
+    p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
+                   help="torch threads of the policies (default %(default)s, as `mivecc "
+                        "evaluate` and paper_table.py: another count rounds the networks "
+                        "differently, and the episode drifts from the table's)")
     args = p.parse_args(argv)
     if args.scheme == "E" and (args.edge or args.cloud):
         p.error("--edge / --cloud: only with --scheme EE or EEC (E runs the rules alone)")
+    if args.threads < 1:
+        p.error(f"--threads: must be an integer >= 1, got {args.threads}")
+    if args.scheme != "E":
+        set_inference_threads(args.threads)
 
     policies = (pretrained_policies(args.model, edge=args.edge, cloud=args.cloud)
                 if args.scheme != "E" else {})

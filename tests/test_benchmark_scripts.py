@@ -255,6 +255,27 @@ def test_trace_collisions_refuses_a_checkpoint_for_the_rules_alone() -> None:
     assert exc.value.code == 2
 
 
+def test_trace_collisions_runs_the_policies_on_one_thread_like_the_table() -> None:
+    # another thread count rounds the networks differently and the traced episode drifts
+    # from the paper table's (measured: EEC, default model, 1200 veh/lane/h, seed 2)
+    import torch
+
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        trace_collisions.main(["--scheme", "EE", "--model", "paper", "--steps", "3",
+                               "--history", "0"])
+        assert torch.get_num_threads() == 1
+        trace_collisions.main(["--scheme", "EE", "--model", "paper", "--steps", "3",
+                               "--history", "0", "--threads", "2"])
+        assert torch.get_num_threads() == 2
+        with pytest.raises(SystemExit) as exc:
+            trace_collisions.main(["--scheme", "EE", "--threads", "0"])
+        assert exc.value.code == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 @pytest.mark.slow
 def test_trace_collisions_eec_finds_the_documented_event(
         capsys: pytest.CaptureFixture[str]) -> None:
