@@ -267,12 +267,12 @@ def test_constant_policy_is_the_ceiling_coordinator():
 def test_shipped_policies_record_their_documented_training_settings():
     # docs/training.md, "Shipped pretrained policies": every pair trained with the released
     # trainer; the released model's edge with SV weight 0.1 (session 9), the default model's
-    # with the trainer's 1.0; both clouds decide every 10 steps.
+    # with 0 (session 17); both clouds decide every 10 steps.
     from mivecc_agents.checkpoints import load_checkpoint, network_variant
     from mivecc_agents.policies import pretrained_path, pretrained_policies
 
     expected = {
-        ("paper", "edge"): {"model": "paper", "reward_sv_weight": 1.0},
+        ("paper", "edge"): {"model": "paper", "reward_sv_weight": 0.0},
         ("paper", "cloud"): {"model": "paper", "cloud_period": 10},
         ("released", "edge"): {"model": "released", "reward_sv_weight": 0.1,
                                "collision_penalty": 0.0},
