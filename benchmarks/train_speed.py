@@ -13,8 +13,11 @@ is meaningful on a shared machine:
 Measurements (each with the training code itself: ``training.env_factory``,
 ``training.make_policy``, ``DDPGLearner.update``, ``training.train``):
 
-* collection: a ``Collector`` with the exploration policy (stage I: edge actor + noise; stage
-  II: frozen edge actor + cloud actor + noise), frames/s after one warm-up batch;
+* collection: the collector ``mivecc train`` builds (``training._make_collector``, one
+  process) with the exploration policy (stage I: edge actor + noise; stage II: frozen edge
+  actor + cloud actor + noise), frames/s of its batches after one warm-up batch (the time
+  inside the collector: the copies kept for the learner timing are made outside it, as the
+  training loop copies each batch into its replay buffer outside it);
 * learner: updates/s and samples/s of the trained group on collected data, at the thread
   count each path uses (old: 1, the documented setting; new: ``thread_settings``);
 * end-to-end (stage I): ``train()`` on 1x1 at the densities, frames/s between the end of its
@@ -87,25 +90,24 @@ def _setup(stage: str, path: str, envs_per_density: int, seed: int = 0):
 
 def collect(stage: str, path: str, frames: int, steps_per_env: int, envs_per_density: int,
             keep: list | None = None) -> dict[str, float]:
-    """Collection frames/s (after one warm-up batch); appends the batches to ``keep``."""
-    from torchrl.collectors import Collector
-
+    """Collection frames/s (after one warm-up batch); appends copies of the batches to
+    ``keep`` (the collector yields its own buffer, overwritten by the next batch)."""
     env_fn, n_envs, policy, *_ = _setup(stage, path, envs_per_density)
     fpb = steps_per_env * n_envs
     torch.set_num_threads(1 if path == "old" else _threads(stage))
-    col = Collector(env_fn, policy, frames_per_batch=fpb, total_frames=-1,
-                    auto_register_policy_transforms=False)
+    col = training._make_collector(env_fn, policy, fpb, -1, 1, None)
     it = iter(col)
     first = next(it)
     if keep is not None:
-        keep.append(first)
-    n, t0 = 0, time.perf_counter()
+        keep.append(first.clone())
+    n, dt = 0, 0.0
     while n < frames:
+        t0 = time.perf_counter()
         data = next(it)
+        dt += time.perf_counter() - t0
         n += data.numel()
         if keep is not None:
-            keep.append(data)
-    dt = time.perf_counter() - t0
+            keep.append(data.clone())
     col.shutdown()
     return {"frames": n, "seconds": dt, "frames_per_s": n / dt, "n_envs": n_envs}
 

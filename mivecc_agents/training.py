@@ -291,7 +291,13 @@ def _make_collector(
     workers,
     ray_address,
 ):
-    """Collector over ``env_fn`` (or one factory per worker): local, multi-process or Ray."""
+    """Collector over ``env_fn`` (or one factory per worker): local, multi-process or Ray.
+
+    The local collector yields its own rollout buffer (``return_same_td=True``), overwritten
+    by the next batch: the training loop copies what it keeps (into the replay buffer) before
+    asking for the next one. Without it TorchRL clones every batch, a fresh copy of all its
+    observations (about 650 MB per stage-II batch of 48 x 100 frames).
+    """
     from torchrl.collectors import Collector, MultiSyncCollector
 
     n = max(1, workers)
@@ -346,6 +352,7 @@ def _make_collector(
         frames_per_batch=frames_per_batch,
         total_frames=total_frames,
         auto_register_policy_transforms=False,
+        return_same_td=True,
     )
 
 

@@ -348,3 +348,41 @@ def test_preactivation_fields_are_checked(field: str, value: float) -> None:
 
     with pytest.raises(ValueError, match=field):
         preset_with("released", {field: str(value)})
+
+
+def test_replay_buffer_keeps_each_batch_of_the_reused_collector_buffer() -> None:
+    """The local collector yields its own buffer, overwritten by the next batch
+    (``return_same_td``): copying a batch into the replay buffer, as the training loop
+    does, keeps that batch's values after the collector has moved on."""
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+    from torchrl.modules import AdditiveGaussianModule
+
+    from mivecc_agents.networks import make_actor
+    from mivecc_agents.training import _make_collector, env_factory, env_groups, make_policy
+
+    overrides = {"rows": 1, "cols": 1, "max_steps": 1000}
+    env_fn, _ = env_factory("native", [1500.0, 2100.0], overrides, "EE", seed=0)
+    probe = env_fn()
+    spec = probe.full_action_spec["edge", "action"]
+    groups = env_groups(probe)
+    probe.close()
+    noise = AdditiveGaussianModule(spec=spec, action_key=("edge", "action"))
+    policy = make_policy("edge", make_actor("edge", "edge"), noise, groups=groups)
+    collector = _make_collector(env_fn, policy, 400, -1, 1, None)  # 2 envs x 200 steps
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(800), batch_size=8)
+    kept, yielded = [], []
+    try:
+        for data in collector:
+            yielded.append(data)
+            kept.append(data["next", "edge", "observation"].clone())
+            buffer.extend(data.reshape(-1))
+            if len(kept) == 2:
+                break
+    finally:
+        collector.shutdown()
+    assert yielded[0] is yielded[1]  # one buffer, overwritten by the second batch
+    assert not torch.equal(kept[0], kept[1])
+    stored = buffer[:]["next", "edge", "observation"]
+    assert kept[1].abs().sum() > 0  # vehicles in the graphs
+    torch.testing.assert_close(stored[:400], kept[0].reshape(400, *kept[0].shape[2:]))
+    torch.testing.assert_close(stored[400:], kept[1].reshape(400, *kept[1].shape[2:]))
