@@ -251,7 +251,8 @@ def evaluation_policies(
     return policies
 
 
-def _check_threads(option: str, threads: Any) -> int:
+def check_threads(option: str, threads: Any) -> int:
+    """``threads`` as an int, or ``ConfigError`` naming ``option`` if it is not >= 1."""
     if threads is None or threads < 1:
         raise ConfigError(f"{option}: must be an integer >= 1, got {threads!r}")
     return int(threads)
@@ -300,7 +301,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Run ``evaluate``: one episode per seed, print and optionally save the metrics."""
     overrides = config_overrides_from_args(args)
     seeds = args.seeds if args.seeds else [args.seed]
-    threads = _check_threads("--threads", args.threads)
+    threads = check_threads("--threads", args.threads)
     policies = {}
     if args.scheme in ("EE", "EEC"):
         config = _evaluation_config(args, overrides)

@@ -798,7 +798,7 @@ def _train(
                 if backend == "pettingzoo":  # the native envs are seeded by their factories
                     collector.set_seed(seed + state["frames"])
                 t_last = time.perf_counter()
-                for data in collector:
+                for data in collector:  # the collector's own buffer: nothing keeps it
                     t_col = time.perf_counter() - t_last
                     n = data.numel()
                     state["frames"] += n
