@@ -1,0 +1,118 @@
+"""The README's results are the committed tables' numbers.
+
+The README quotes the 3x3 rows of both models' paper tables
+(``docs/results/paper_table*/paper_table.csv``, written by ``benchmarks/paper_table.py``). When
+a table is regenerated, these tests fail until the README is brought up to date: they recompute
+every quoted figure from the committed runs (means over seeds, gains of the means, strict
+events summed over seeds) and look for it in the README's text.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from paper_table import DENSITIES, PAPER_3X3, improvement, read_runs_csv  # noqa: E402
+
+README = (ROOT / "README.md").read_text(encoding="utf-8")
+RESULTS = README[README.index("## Results"):README.index("## Documentation")]
+
+
+def _table(model: str) -> dict[tuple[str, int], dict[str, float]]:
+    """(scheme, density) -> seed means of the 3x3 runs of one model's committed table."""
+    name = "paper_table" if model == "default" else "paper_table_released"
+    rows = read_runs_csv(ROOT / "docs" / "results" / name / "paper_table.csv")
+    cells: dict[tuple[str, int], dict[str, float]] = {}
+    for scheme in {x["scheme"] for x in rows}:
+        for d in DENSITIES:
+            runs = [x for x in rows if (x["rows"], x["cols"], x["scheme"], x["density"])
+                    == (3, 3, scheme, d)]
+            if runs:
+                cells[(scheme, d)] = {
+                    "v": float(np.mean([x["avg_travel_velocity_mps"] for x in runs])),
+                    "rv": float(np.mean([x["released_velocity_mps"] for x in runs])),
+                    "events": int(np.sum([x["collisions"] for x in runs])),
+                    "ub": float(runs[0]["upper_bound_mps"]),
+                    "seeds": len(runs),
+                }
+    return cells
+
+
+def _gains(cells: dict, a: str, b: str, key: str) -> list[float]:
+    return [improvement(cells[(a, d)][key], cells[(b, d)][key]) for d in DENSITIES]
+
+
+def _span(gains: list[float]) -> str:
+    return f"{min(gains):+.2f} % to {max(gains):+.2f} %"
+
+
+def _events(cells: dict, scheme: str) -> str:
+    return " / ".join(str(cells[(scheme, d)]["events"]) for d in DENSITIES)
+
+
+@pytest.fixture(scope="module")
+def default() -> dict:
+    return _table("default")
+
+
+@pytest.fixture(scope="module")
+def released() -> dict:
+    return _table("released")
+
+
+def test_both_tables_hold_three_seeds_per_cell(default, released):
+    for cells in (default, released):
+        assert {c["seeds"] for c in cells.values()} == {3}
+
+
+def test_default_model_velocity_rows(default):
+    for d in (300, 1200, 2100):
+        cells = [f"{d}", f"{default[('E', d)]['ub']:.3f}"] + [
+            f"{default[(s, d)]['v']:.3f} ({default[(s, d)]['events']})"
+            for s in ("signalized", "E", "EE", "EEC", "EE+3")]
+        assert "| " + " | ".join(cells) + " |" in RESULTS, d
+
+
+def test_default_model_gains_and_events(default):
+    edge = _gains(default, "EE", "E", "v")
+    assert _span(edge) in RESULTS
+    share = [g / c for g, c in zip(edge, _gains(default, "EE+3", "E", "v"), strict=True)]
+    assert f"{100 * min(share):.0f}-{100 * max(share):.0f} % of what an edge" in RESULTS
+    assert f"Strict events {_events(default, 'EE')} (E: " in RESULTS.replace("\n  ", " ")
+    assert f"(E: {_events(default, 'E')})" in RESULTS.replace("\n  ", " ")
+    cloud = _gains(default, "EEC", "EE", "v")
+    assert f"{_span(cloud)} over EE" in RESULTS
+    assert f"+{min(_gains(default, 'EEC', 'EE', 'rv')):.2f} % to" in RESULTS
+    assert f"strict events {_events(default, 'EEC')}." in RESULTS.replace("\n  ", " ")
+
+
+def test_released_model_gain_rows(released):
+    for (a, b), name in ((("EE", "E"), "EE vs E"), (("EEC", "E"), "EEC vs E"),
+                         (("EEC", "EE"), "EEC vs EE")):
+        gains = _gains(released, a, b, "rv")
+        cells = [f"{g:+.2f} ({PAPER_3X3[name][d]:.2f})"
+                 for g, d in zip(gains, DENSITIES, strict=True)]
+        assert f"| {name} [%] | " + " | ".join(cells) + " |" in RESULTS, name
+    events = [" / ".join(str(released[(s, d)]["events"]) for s in ("E", "EE", "EEC"))
+              for d in DENSITIES]
+    assert "| events E / EE / EEC | " + " | ".join(events) + " |" in RESULTS
+
+
+def test_released_model_cloud_span(released):
+    assert f"{_span(_gains(released, 'EEC', 'EE', 'rv'))} over EE" in RESULTS
+
+
+def test_released_model_edge_against_its_ceiling(released):
+    edge = _gains(released, "EE", "E", "rv")
+    ceiling = _gains(released, "EE+3", "E", "rv")
+    share = [g / c for g, c, d in zip(edge, ceiling, DENSITIES, strict=True) if d >= 1500]
+    text = RESULTS.replace("\n  ", " ")
+    assert f"{100 * min(share):.0f}-{100 * max(share):.0f} % of the constant +3 edge" in text
+    events = [released[("EE+3", d)]["events"] for d in DENSITIES]
+    assert f"collides {min(events)}-{max(events)} times per cell" in text
