@@ -18,29 +18,28 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from paper_table import DENSITIES, PAPER_3X3, improvement, read_runs_csv  # noqa: E402
+from paper_table import (  # noqa: E402
+    DENSITIES,
+    PAPER_3X3,
+    improvement,
+    read_runs_csv,
+    summarise,
+)
 
 README = (ROOT / "README.md").read_text(encoding="utf-8")
 RESULTS = README[README.index("## Results"):README.index("## Documentation")]
 
 
 def _table(model: str) -> dict[tuple[str, int], dict[str, float]]:
-    """(scheme, density) -> seed means of the 3x3 runs of one model's committed table."""
+    """(scheme, density) -> seed means of the 3x3 runs of one model's committed table, as
+    ``paper_table.summarise`` computes them, plus the released-style velocity ``rv``."""
     name = "paper_table" if model == "default" else "paper_table_released"
     rows = read_runs_csv(ROOT / "docs" / "results" / name / "paper_table.csv")
-    cells: dict[tuple[str, int], dict[str, float]] = {}
-    for scheme in {x["scheme"] for x in rows}:
-        for d in DENSITIES:
-            runs = [x for x in rows if (x["rows"], x["cols"], x["scheme"], x["density"])
-                    == (3, 3, scheme, d)]
-            if runs:
-                cells[(scheme, d)] = {
-                    "v": float(np.mean([x["avg_travel_velocity_mps"] for x in runs])),
-                    "rv": float(np.mean([x["released_velocity_mps"] for x in runs])),
-                    "events": int(np.sum([x["collisions"] for x in runs])),
-                    "ub": float(runs[0]["upper_bound_mps"]),
-                    "seeds": len(runs),
-                }
+    cells = summarise(rows, "3x3")[1]
+    for (scheme, d), cell in cells.items():
+        cell["rv"] = float(np.mean([x["released_velocity_mps"] for x in rows if (
+            x["rows"], x["cols"], x["scheme"], x["density"]) == (3, 3, scheme, d)]))
+        cell["events"] = int(cell["collisions"])
     return cells
 
 
@@ -68,7 +67,7 @@ def released() -> dict:
 
 def test_both_tables_hold_three_seeds_per_cell(default, released):
     for cells in (default, released):
-        assert {c["seeds"] for c in cells.values()} == {3}
+        assert {c["n"] for c in cells.values()} == {3}
 
 
 def test_default_model_velocity_rows(default):
