@@ -1,0 +1,154 @@
+"""Summary of every committed ``speed.py`` run: one row per run, then the spread per machine.
+
+Reads ``session<N>/speed_run<R>.json`` under ``--runs`` (default
+``docs/results/performance``; each file is the ``speed.json`` one ``benchmarks/speed.py`` run
+wrote) and prints, per run, SUMO-unregulated's fastest round and the three floors' ratios
+(vehicle-steps/s over SUMO-unregulated's, as ``speed.py`` computes them within its run), then,
+per CPU, the range and median of each ratio and how many runs met each floor. The runs differ in
+nothing but the host's load: read the spread as the measurement's uncertainty.
+
+Writes the same markdown to ``--out`` (default ``<runs>/summary.md``).
+
+Usage::
+
+    python benchmarks/speed_summary.py
+    python benchmarks/speed_summary.py --runs docs/results/performance --out /tmp/summary.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import statistics
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_RUNS = HERE.parent / "docs" / "results" / "performance"
+RUN_FILE = re.compile(r"session(\d+)/speed_run(\d+)\.json$")
+PEER = "sumo unregulated"
+#: (floor key in ``speed.json``, column title of the per-run table)
+FLOOR_COLUMNS = (
+    ("env_b1", "env EEC, B=1 (floor 1x)"),
+    ("batched_b64", "batched env, B=64 (floor 5x)"),
+    ("core_b64", "core, B=64 (floor 15x)"),
+)
+#: (engine in ``speed.json``'s ratios, row title of the per-CPU table)
+ENGINE_ROWS = (
+    ("env EEC", "full PettingZoo step, scheme EEC, B=1"),
+    ("batched B=1", "batched env, EEC observations, B=1"),
+    ("batched B=64", "batched env, EEC observations, B=64"),
+    ("core B=1", "bare core, B=1"),
+    ("core B=64", "bare core, B=64"),
+)
+
+
+class SummaryError(ValueError):
+    """A run file that is missing, unreadable or lacks a field the summary needs."""
+
+
+def machine_label(machine: dict[str, Any]) -> str:
+    """CPU name and its widest vector instruction set, e.g. ``AMD EPYC, AVX-512``."""
+    flags = set(machine.get("cpu_flags", ()))
+    isa = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "no AVX2"
+    return f"{machine.get('cpu', 'unknown CPU')}, {isa}"
+
+
+def load_runs(runs_dir: Path) -> list[dict[str, Any]]:
+    """One record per run file, ordered by session then run."""
+    records = []
+    for path in sorted(runs_dir.glob("session*/speed_run*.json")):
+        match = RUN_FILE.search(path.as_posix())
+        if match is None:
+            continue
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+            peer = next(r for r in doc["results"] if r["engine"] == PEER)
+            record = {
+                "session": int(match.group(1)), "run": int(match.group(2)),
+                "commit": doc["machine"]["git_commit"][:7],
+                "date_utc": doc["machine"]["date_utc"][:16].replace("T", " "),
+                "machine": machine_label(doc["machine"]),
+                "sumo_steps_per_s": float(peer["steps_per_s"]),
+                **{key: float(doc["floors"][key]["measured_ratio"]) for key, _ in FLOOR_COLUMNS},
+                "ratios": {r["engine"]: float(r["vehicle_steps_ratio"]) for r in doc["ratios"]},
+                "required": {doc["floors"][key]["engine"]: float(doc["floors"][key][
+                    "required_ratio"]) for key, _ in FLOOR_COLUMNS},
+                **{f"{key}_required": float(doc["floors"][key]["required_ratio"])
+                   for key, _ in FLOOR_COLUMNS},
+            }  # fmt: skip
+        except (OSError, ValueError, KeyError, StopIteration, TypeError) as err:
+            raise SummaryError(
+                f"{path}: not a speed.py result ({type(err).__name__}: {err})") from None
+        records.append(record)
+    records.sort(key=lambda r: (r["session"], r["run"]))
+    return records
+
+
+def _met(record: dict[str, Any], key: str) -> bool:
+    return record[key] >= record[f"{key}_required"]
+
+
+def markdown(records: list[dict[str, Any]]) -> str:
+    """The per-run table and the per-machine spread, as markdown."""
+    head = ["session", "run", "commit", "date (UTC)", "CPU", "SUMO-unreg. steps/s",
+            *(title for _, title in FLOOR_COLUMNS)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * 5 + "---:|" * (len(head) - 5)]
+    for r in records:
+        ratios = [f"{r[key]:.2f}" + ("" if _met(r, key) else " (missed)")
+                  for key, _ in FLOOR_COLUMNS]
+        lines.append(f"| {r['session']} | {r['run']} | `{r['commit']}` | {r['date_utc']} | "
+                     f"{r['machine']} | {r['sumo_steps_per_s']:,.0f} | " + " | ".join(ratios)
+                     + " |")
+    for machine in dict.fromkeys(r["machine"] for r in records):
+        group = [r for r in records if r["machine"] == machine]
+        sessions = sorted({r["session"] for r in group})
+        lines += ["", f"{machine}: {len(group)} runs, sessions {sessions[0]}-{sessions[-1]}; "
+                  "each ratio's range and median over the runs, and the runs that met its "
+                  "floor:", "", "| engine | range | median | floor |", "|---|---:|---:|---|"]
+        for engine, title in ENGINE_ROWS:
+            values = [r["ratios"][engine] for r in group if engine in r["ratios"]]
+            if not values:
+                continue
+            floor = "-"
+            need = group[0]["required"].get(engine)
+            if need is not None:
+                met = sum(x >= need for x in values)
+                floor = f"{need:g}x: met in {met} of {len(values)}"
+            lines.append(f"| {title} | {min(values):.2f}-{max(values):.2f}x | "
+                         f"{statistics.median(values):.2f}x | {floor} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the summary and write it to ``--out``; returns the exit status."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--runs", type=Path, default=DEFAULT_RUNS,
+                   help="folder of session<N>/speed_run<R>.json files "
+                   "(default docs/results/performance)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="markdown file to write (default <runs>/summary.md)")
+    args = p.parse_args(argv)
+    try:
+        records = load_runs(args.runs)
+    except SummaryError as err:
+        print(f"speed_summary.py: error: {err}", file=sys.stderr)
+        return 2
+    if not records:
+        print(f"speed_summary.py: error: --runs {args.runs}: no session<N>/speed_run<R>.json "
+              "files", file=sys.stderr)
+        return 2
+    text = markdown(records)
+    out = args.out if args.out is not None else args.runs / "summary.md"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text, encoding="utf-8")
+    print(text)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
