@@ -10,11 +10,12 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
+import sys
 from collections.abc import Sequence
 
 import numpy as np
 
+from mivecc_env import cli_args
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.core import Simulator
 from mivecc_env.sim.state_graph import cloud_graphs
@@ -24,14 +25,14 @@ POPULATIONS = ("network", "conflict_ahead", "before_last_centre")
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, float]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rows", type=int, default=3)
-    parser.add_argument("--cols", type=int, default=3)
-    parser.add_argument("--density", type=float, default=2100.0)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--steps", type=int, default=1000)
-    parser.add_argument("--start", type=int, default=600)
-    parser.add_argument("--every", type=int, default=20)
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rows", type=cli_args.count(1), default=3)
+    parser.add_argument("--cols", type=cli_args.count(1), default=3)
+    parser.add_argument("--density", type=cli_args.density, default=2100.0)
+    parser.add_argument("--seed", type=cli_args.seed, default=0)
+    parser.add_argument("--steps", type=cli_args.count(1), default=1000)
+    parser.add_argument("--start", type=cli_args.count(0), default=600)
+    parser.add_argument("--every", type=cli_args.count(1), default=20)
     args = parser.parse_args(argv)
     cfg = MiVeCCConfig(rows=args.rows, cols=args.cols, density_vplh=args.density)
     sim = Simulator(cfg, seed=args.seed)
@@ -57,4 +58,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

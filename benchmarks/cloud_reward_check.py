@@ -16,7 +16,7 @@ Usage (about 1 min on an idle 2-core machine):
 
 from __future__ import annotations
 
-import argparse
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,6 +26,7 @@ import numpy as np
 
 from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.policies import Policy, constant_policy, load_policy, pretrained_policies
+from mivecc_env import cli_args
 
 CONSTANTS_MPS2 = (-3.0, 0.0, 1.0, 3.0)
 
@@ -66,24 +67,26 @@ def run_variant(
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
     parser.add_argument("--model", choices=("paper", "released"), default="released")
-    parser.add_argument("--rows", type=int, default=3)
-    parser.add_argument("--cols", type=int, default=3)
-    parser.add_argument("--densities", type=float, nargs="+", default=[1500.0, 2100.0])
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--constants", type=float, nargs="*", default=list(CONSTANTS_MPS2),
+    parser.add_argument("--rows", type=cli_args.count(1), default=3)
+    parser.add_argument("--cols", type=cli_args.count(1), default=3)
+    parser.add_argument("--densities", type=cli_args.density, nargs="+", default=[1500.0, 2100.0])
+    parser.add_argument("--seeds", type=cli_args.seed, nargs="+", default=[0, 1])
+    parser.add_argument("--steps", type=cli_args.count(1), default=2000)
+    parser.add_argument("--constants", type=cli_args.number(-3.0, 3.0), nargs="*",
+                        default=list(CONSTANTS_MPS2),
                         help="constant cloud actions to run [m/s^2]")
-    parser.add_argument("--skip", type=int, default=500,
+    parser.add_argument("--skip", type=cli_args.count(0), default=500,
                         help="fill-up steps left out of the mean rewards")
     parser.add_argument("--cloud", type=Path, default=None,
                         help="a cloud checkpoint to check instead of the model's shipped one")
-    parser.add_argument("--cloud-period", type=int, default=None,
+    parser.add_argument("--cloud-period", type=cli_args.count(1), default=None,
                         help="steps between cloud decisions of every variant (default: a "
                         "learned cloud's training period, the constant clouds every step)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = parser.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
     if args.cloud_period is not None and not 1 <= args.cloud_period <= 1000:
         parser.error(f"--cloud-period: must be in [1, 1000] steps, got {args.cloud_period}")
     if not 0 <= args.skip < args.steps:
@@ -112,7 +115,6 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
               f"m/s  collisions {r['collisions']}  period {r['cloud_period']}  mean action "
               f"{r['mean_cloud_action_mps2']:+.3f} m/s^2  ({time.perf_counter() - t0:.0f} s)",
               flush=True)
-    args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / f"cloud_reward_check_{args.model}.md"
     lines = [
         f"Command: `python benchmarks/cloud_reward_check.py --model {args.model} --rows "
@@ -138,4 +140,4 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -43,6 +43,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from mivecc_env import cli_args
+
 SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "reservation",
            "optimisation")
 DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
@@ -232,15 +234,17 @@ def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[st
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--grids", nargs="+", default=["1x1", "3x3"])
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--grids", nargs="+", type=cli_args.grid, default=[(1, 1), (3, 3)])
     p.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=SCHEMES)
-    p.add_argument("--densities", nargs="+", type=int, default=list(DENSITIES))
-    p.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    p.add_argument("--steps", type=int, default=3000, help="env steps of 0.1 s per run")
+    p.add_argument("--densities", nargs="+", type=cli_args.whole_density, default=list(DENSITIES))
+    p.add_argument("--seeds", nargs="+", type=cli_args.seed, default=[0, 1, 2])
+    p.add_argument("--steps", type=cli_args.count(1), default=3000,
+                   help="env steps of 0.1 s per run")
     p.add_argument("--steps-for", nargs="+", default=[], metavar="SCHEME=STEPS",
                    help="fewer steps for a slow scheme, e.g. optimisation=1000")
-    p.add_argument("--workers", type=int, default=1, help="processes (1: in this process)")
+    p.add_argument("--workers", type=cli_args.count(1), default=1,
+                   help="processes (1: in this process)")
     p.add_argument("--from-csv", nargs="+", type=Path, default=[],
                    help="reuse matching runs of earlier CSVs (the last CSV holding a run wins)")
     p.add_argument("--tabulate-only", action="store_true",
@@ -249,17 +253,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="env model of the runs reused from --from-csv (others are ignored); "
                    "the comparators run the default model")
     p.add_argument("--out", type=Path, default=Path("docs/results/comparison"))
-    return p.parse_args(argv)
-
-
-def _grids(specs: Sequence[str]) -> list[tuple[int, int]]:
-    out = []
-    for g in specs:
-        parts = g.lower().split("x")
-        if len(parts) != 2 or not all(p.isdigit() and int(p) >= 1 for p in parts):
-            raise SystemExit(f"--grids: expected ROWSxCOLS with integers >= 1, got {g!r}")
-        out.append((int(parts[0]), int(parts[1])))
-    return out
+    args = p.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
+    for option in ("grids", "seeds", "densities"):
+        cli_args.check_distinct(f"--{option}", getattr(args, option))
+    return args
 
 
 def _steps_for(items: Sequence[str], schemes: Sequence[str]) -> dict[str, int]:
@@ -267,18 +265,18 @@ def _steps_for(items: Sequence[str], schemes: Sequence[str]) -> dict[str, int]:
     for item in items:
         name, _, value = item.partition("=")
         if name not in schemes or not value.isdigit() or int(value) < 1:
-            raise SystemExit(f"--steps-for: expected SCHEME=STEPS with SCHEME in {list(schemes)} "
-                             f"and STEPS an integer >= 1, got {item!r}")
+            raise cli_args.InputError(
+                f"--steps-for: expected SCHEME=STEPS with SCHEME in {list(schemes)} and STEPS "
+                f"an integer >= 1, got {item!r}")
         out[name] = int(value)
     return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    grids = _grids(args.grids)
+    grids = args.grids
     steps_for = _steps_for(args.steps_for, SCHEMES)
     known = load_rows(args.from_csv, args.model)
-    args.out.mkdir(parents=True, exist_ok=True)
     jobs, rows = [], []
     for (r, c) in grids:
         for d in args.densities:
@@ -333,4 +331,4 @@ def _write_csv(rows: list[dict[str, Any]], path: Path, keys: Sequence[str] | Non
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    sys.exit(cli_args.run(main))

@@ -19,11 +19,12 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import subprocess
 import sys
+
+from mivecc_env import cli_args
 
 CODE = r"""
 import sys, time
@@ -66,13 +67,13 @@ print((timer() - t0) / steps * 1e6)
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
     p.add_argument("--trees", nargs=2, required=True, help="old and new source trees")
-    p.add_argument("--batch", type=int, default=1)
-    p.add_argument("--density", type=float, default=2100.0)
-    p.add_argument("--steps", type=int, default=1000)
-    p.add_argument("--warmup", type=int, default=600)
-    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--batch", type=cli_args.count(1), default=1)
+    p.add_argument("--density", type=cli_args.density, default=2100.0)
+    p.add_argument("--steps", type=cli_args.count(1), default=1000)
+    p.add_argument("--warmup", type=cli_args.count(0), default=600)
+    p.add_argument("--rounds", type=cli_args.count(1), default=3)
     p.add_argument("--what", choices=("core", "batched", "E", "EE", "EEC"), default="core",
                    help="which step (see the module docstring)")
     p.add_argument("--clock", choices=("wall", "cpu"), default="wall")
@@ -95,4 +96,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

@@ -14,7 +14,6 @@ Usage (the reference tree is, e.g., ``git worktree add --detach /tmp/ref <commit
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -22,6 +21,8 @@ import subprocess
 import sys
 from pathlib import Path
 from typing import Any
+
+from mivecc_env import cli_args
 
 STATE = ("active", "lane", "s", "v", "a", "t_arrive", "t_enter", "vid", "next_vid", "exited",
          "collided", "collision_events", "sum_travel_velocity", "sum_travel_velocity_no_wait",
@@ -93,11 +94,11 @@ def run_tree(tree: Path, specs: list[dict[str, Any]], steps: int, seed: int) -> 
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
     p.add_argument("--reference", type=Path, required=True, help="old source tree")
     p.add_argument("--candidate", type=Path, default=Path("."), help="new source tree")
-    p.add_argument("--steps", type=int, default=1200)
-    p.add_argument("--seed", type=int, default=3)
+    p.add_argument("--steps", type=cli_args.count(1), default=1200)
+    p.add_argument("--seed", type=cli_args.seed, default=3)
     a = p.parse_args(argv)
     specs = configs()
     ref = run_tree(a.reference, specs, a.steps, a.seed)
@@ -114,4 +115,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

@@ -31,7 +31,7 @@ Usage (about 10 s to 1 min on an idle 2-core machine):
 
 from __future__ import annotations
 
-import argparse
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -45,6 +45,7 @@ from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.learner import SATURATED_Z
 from mivecc_agents.networks import make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
+from mivecc_env import cli_args
 
 ACTION_BOUND_MPS2 = 3.0
 #: An action this close to a bound counts as at the bound [m/s^2].
@@ -171,7 +172,7 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
          prog: str = "benchmarks/critic_check.py") -> list[dict[str, Any]]:
     """Run the check; ``fixed_kind`` / ``prog``: a script that checks one kind only (no
     ``--kind`` option; its name in the written command)."""
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    parser = cli_args.Parser(prog=prog, description=__doc__.splitlines()[0])
     if fixed_kind is None:
         parser.add_argument("--kind", choices=("edge", "cloud"), required=True)
     parser.add_argument("--model", choices=("paper", "released"), default="released")
@@ -179,20 +180,23 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
         parser.add_argument(f"--{kind}", type=Path, default=None,
                             help=f"{kind} checkpoint (actor and critic) to check; default: the "
                                  "model's shipped one")
-    parser.add_argument("--rows", type=int, default=3)
-    parser.add_argument("--cols", type=int, default=3)
-    parser.add_argument("--densities", type=float, nargs="+", default=[1500.0, 2100.0])
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
-    parser.add_argument("--steps", type=int, default=1500)
-    parser.add_argument("--skip", type=int, default=500,
+    parser.add_argument("--rows", type=cli_args.count(1), default=3)
+    parser.add_argument("--cols", type=cli_args.count(1), default=3)
+    parser.add_argument("--densities", type=cli_args.density, nargs="+", default=[1500.0, 2100.0])
+    parser.add_argument("--seeds", type=cli_args.seed, nargs="+", default=[0, 1])
+    parser.add_argument("--steps", type=cli_args.count(1), default=1500)
+    parser.add_argument("--skip", type=cli_args.count(0), default=500,
                         help="fill-up steps before states are kept")
-    parser.add_argument("--every", type=int, default=10, help="keep a state every N steps")
-    parser.add_argument("--shift", type=float, default=1.0,
+    parser.add_argument("--every", type=cli_args.count(1), default=10,
+                        help="keep a state every N steps")
+    parser.add_argument("--shift", type=cli_args.number(0.0, low_ok=False), default=1.0,
                         help="shift of the actor's action in every column [m/s^2]")
-    parser.add_argument("--constants", type=float, nargs="*", default=[-3.0, 0.0, 3.0],
+    parser.add_argument("--constants", type=cli_args.number(-3.0, 3.0), nargs="*",
+                        default=[-3.0, 0.0, 3.0],
                         help="constant probe actions [m/s^2]")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = parser.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
     kind = fixed_kind or args.kind
     if not 0 <= args.skip < args.steps:
         parser.error(f"--skip: must be in [0, --steps - 1] = [0, {args.steps - 1}], "
@@ -230,7 +234,6 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
     ]
     for line in col_lines:
         print(f"  actor {line}")
-    args.out.mkdir(parents=True, exist_ok=True)
     out = args.out / f"{kind}_critic_check_{args.model}.md"
     column = "pick rank" if kind == "cloud" else "decision slot"
     lines = [
@@ -260,4 +263,4 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -15,31 +15,34 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from tqdm import tqdm
 
+from mivecc_env import cli_args
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.render import render_rgb, save_heatmaps
 from mivecc_env.sim.core import Simulator
 
 
 def main(argv: Sequence[str] | None = None) -> list[Path]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rows", type=int, default=3)
-    parser.add_argument("--cols", type=int, default=3)
-    parser.add_argument("--density", type=float, default=2100.0)
-    parser.add_argument("--steps", type=int, default=1500)
-    parser.add_argument("--seed", type=int, default=0)
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rows", type=cli_args.count(1), default=3)
+    parser.add_argument("--cols", type=cli_args.count(1), default=3)
+    parser.add_argument("--density", type=cli_args.density, default=2100.0)
+    parser.add_argument("--steps", type=cli_args.count(1), default=1500)
+    parser.add_argument("--seed", type=cli_args.seed, default=0)
     parser.add_argument("--scheme", choices=("E", "EE", "EEC"), default="E",
                         help="scheme of the unsignalized run (default: E)")
     parser.add_argument("--control", choices=("unsignalized", "signalized", "both"),
                         default="both", help="which runs to make (default: both)")
-    parser.add_argument("--cell", type=float, default=10.0, help="heat-map cell side [m]")
+    parser.add_argument("--cell", type=cli_args.number(0.0, low_ok=False), default=10.0,
+                        help="heat-map cell side [m]")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/heatmaps"))
     args = parser.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
 
     from matplotlib.image import imsave
 
@@ -67,4 +70,4 @@ def main(argv: Sequence[str] | None = None) -> list[Path]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -18,7 +18,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import importlib.util
 import sys
 import time
@@ -27,6 +26,7 @@ from types import ModuleType
 
 import numpy as np
 
+from mivecc_env import cli_args
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import step_kernels
 from mivecc_env.sim.core import Simulator
@@ -65,12 +65,12 @@ def load_reference_step_kernels(tree: Path) -> ModuleType:
 
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
     p.add_argument("--ref", type=Path, required=True, help="the other source tree")
-    p.add_argument("--batch", type=int, default=64)
-    p.add_argument("--density", type=float, default=2100.0)
-    p.add_argument("--warmup", type=int, default=400)
-    p.add_argument("--steps", type=int, default=200)
+    p.add_argument("--batch", type=cli_args.count(1), default=64)
+    p.add_argument("--density", type=cli_args.density, default=2100.0)
+    p.add_argument("--warmup", type=cli_args.count(0), default=400)
+    p.add_argument("--steps", type=cli_args.count(1), default=200)
     a = p.parse_args()
     ref_module = load_reference(a.ref)
     kernels = {"ref": load_reference_step_kernels(a.ref), "this": step_kernels}
@@ -117,4 +117,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -12,10 +12,11 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
+import sys
 import time
 from collections.abc import Sequence
 
+from mivecc_env import cli_args
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.core import Simulator
 
@@ -55,12 +56,13 @@ def measure(batch: int, density: float, warmup: int, rounds: int, block: int) ->
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, nargs="+", default=[1, 16])
-    parser.add_argument("--density", type=float, default=2100.0)
-    parser.add_argument("--warmup", type=int, default=1000, help="steps before timing")
-    parser.add_argument("--rounds", type=int, default=20)
-    parser.add_argument("--block", type=int, default=25, help="steps per timed block")
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
+    parser.add_argument("--batch", type=cli_args.count(1), nargs="+", default=[1, 16])
+    parser.add_argument("--density", type=cli_args.density, default=2100.0)
+    parser.add_argument("--warmup", type=cli_args.count(0), default=1000,
+                        help="steps before timing")
+    parser.add_argument("--rounds", type=cli_args.count(1), default=20)
+    parser.add_argument("--block", type=cli_args.count(1), default=25, help="steps per timed block")
     args = parser.parse_args(argv)
     results = []
     for b in args.batch:
@@ -74,4 +76,4 @@ def main(argv: Sequence[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -13,14 +13,15 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 import os
+import sys
 import time
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from mivecc_env import cli_args
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import optimisation as op
 from mivecc_env.sim.core import Simulator
@@ -64,12 +65,12 @@ def measure(window: int, rows: int, density: float, steps: int, seed: int) -> di
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--windows", nargs="+", type=int, default=[6, 8, 10, 12])
-    p.add_argument("--rows", type=int, default=1, help="grid rows = cols")
-    p.add_argument("--density", type=float, default=2100.0, help="veh/lane/h")
-    p.add_argument("--steps", type=int, default=600)
-    p.add_argument("--seed", type=int, default=0)
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--windows", nargs="+", type=cli_args.count(1), default=[6, 8, 10, 12])
+    p.add_argument("--rows", type=cli_args.count(1), default=1, help="grid rows = cols")
+    p.add_argument("--density", type=cli_args.density, default=2100.0, help="veh/lane/h")
+    p.add_argument("--steps", type=cli_args.count(1), default=600)
+    p.add_argument("--seed", type=cli_args.seed, default=0)
     args = p.parse_args(argv)
     measure(args.windows[0], args.rows, args.density, 100, args.seed)  # imports, compiling
     print(f"load average {os.getloadavg()[0]:.1f}; {args.rows}x{args.rows}, {args.density:g} "
@@ -87,4 +88,4 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -29,11 +29,11 @@ Usage (the full table; 168 episodes in 8 batches):
 
 from __future__ import annotations
 
-import argparse
 import csv
 import itertools
 import json
 import multiprocessing as mp
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +41,8 @@ from typing import Any
 import numpy as np
 from machine_info import describe, machine_info
 from tqdm import tqdm
+
+from mivecc_env import cli_args
 
 SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
 #: Constant-action ceilings: the scheme run, and the coordinator replaced by a constant +3 m/s^2
@@ -89,7 +91,9 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
 
 def read_runs_csv(path: Path) -> list[dict[str, Any]]:
     """Rows of an earlier run's CSV with the numeric columns parsed."""
-    def parse(value: str) -> Any:
+    def parse(value: Any) -> Any:
+        if not isinstance(value, str):  # a row with more fields than the header: a list
+            return value
         try:
             number = float(value)
         except ValueError:
@@ -334,21 +338,28 @@ def _paired_gains(rows: list[dict[str, Any]], grid: str, key: str = "avg_travel_
     return out
 
 
+def _grid_name(text: str) -> str:
+    """Argument type: a grid ``ROWSxCOLS`` (checked by :func:`cli_args.grid`), kept as the
+    name ``summarise`` and the file names use."""
+    rows, cols = cli_args.grid(text)
+    return f"{rows}x{cols}"
+
+
 def main(argv: Sequence[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--grids", nargs="+", default=["1x1", "3x3"])
-    parser.add_argument("--densities", type=float, nargs="+", default=list(DENSITIES))
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
+    parser.add_argument("--grids", nargs="+", type=_grid_name, default=["1x1", "3x3"])
+    parser.add_argument("--densities", type=cli_args.density, nargs="+", default=list(DENSITIES))
     parser.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=SCHEMES)
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--seeds", type=cli_args.seed, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--steps", type=cli_args.count(1), default=3000)
     parser.add_argument("--edge", default=None, help="edge checkpoint (default: shipped)")
     parser.add_argument("--cloud", default=None, help="cloud checkpoint (default: shipped)")
     parser.add_argument("--model", choices=("paper", "released"), default="paper",
                         help="env model; the shipped policies of that model are used")
-    parser.add_argument("--cloud-period", type=int, default=None,
+    parser.add_argument("--cloud-period", type=cli_args.count(1), default=None,
                         help="steps between cloud decisions of EEC and EEC+3 (default: a "
                         "learned cloud's training period; EEC+3 every step)")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=cli_args.count(1), default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
     parser.add_argument("--from-csv", type=Path, nargs="+", default=None,
                         help="build the tables from earlier runs' paper_table.csv files "
@@ -356,6 +367,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
                         "later file replaces one of an earlier file with the same grid, "
                         "scheme, density and seed")
     args = parser.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
+    for option in ("grids", "seeds", "densities"):
+        cli_args.check_distinct(f"--{option}", getattr(args, option))
     if args.cloud_period is not None and not 1 <= args.cloud_period <= 1000:
         parser.error(f"--cloud-period: must be in [1, 1000] steps, got {args.cloud_period}")
 
@@ -374,7 +388,6 @@ def main(argv: Sequence[str] | None = None) -> Path:
     else:
         rows = [row for j in tqdm(jobs, desc="batches") for row in _run(j)]
 
-    args.out.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for row in rows for k in row))
     with open(args.out / "paper_table.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=keys, restval="")
@@ -401,4 +414,4 @@ def main(argv: Sequence[str] | None = None) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -18,7 +18,6 @@ shared with other jobs the shares then depend much less on the load.
 
 from __future__ import annotations
 
-import argparse
 import cProfile
 import pstats
 import sys
@@ -26,6 +25,8 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+
+from mivecc_env import cli_args
 
 #: (label, module file suffix, function name) of the phases reported.
 PHASES = (
@@ -75,20 +76,21 @@ def split(stats: pstats.Stats, steps: int) -> list[tuple[str, float]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--grid", default="3x3")
-    p.add_argument("--density", type=float, default=2100.0)
-    p.add_argument("--batch", type=int, default=1, help="core batch size (ignored with --env)")
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--grid", type=cli_args.grid, default=(3, 3), help="ROWSxCOLS (default 3x3)")
+    p.add_argument("--density", type=cli_args.density, default=2100.0)
+    p.add_argument("--batch", type=cli_args.count(1), default=1,
+                   help="core batch size (ignored with --env)")
     p.add_argument("--env", choices=("E", "EE", "EEC"), default=None,
                    help="profile the full ParallelEnv step (B=1) of this scheme instead")
-    p.add_argument("--batched-env", type=int, default=None, metavar="B",
+    p.add_argument("--batched-env", type=cli_args.count(1), default=None, metavar="B",
                    help="profile BatchedMiVeCCEnv.step (scheme EEC, EEC observations) at B")
     p.add_argument("--timer", choices=("wall", "cpu"), default="wall",
                    help="cProfile clock: wall time or this process's CPU time")
-    p.add_argument("--steps", type=int, default=300)
-    p.add_argument("--warmup", type=int, default=600)
+    p.add_argument("--steps", type=cli_args.count(1), default=300)
+    p.add_argument("--warmup", type=cli_args.count(0), default=600)
     a = p.parse_args(argv)
-    rows, cols = (int(x) for x in a.grid.split("x"))
+    rows, cols = a.grid
     step: Callable[[], object]
     if a.batched_env:
         from mivecc_env.batched import BatchedMiVeCCEnv
@@ -131,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     prof.disable()
     rows_out = split(pstats.Stats(prof), a.steps)
     top = rows_out[0][1] if rows_out else 1.0
-    print(f"{what}, {a.grid}, {a.density:g} veh/lane/h, {a.steps} profiled steps, "
+    print(f"{what}, {rows}x{cols}, {a.density:g} veh/lane/h, {a.steps} profiled steps, "
           f"{a.timer} time")
     print(f"{'phase':<45} {'us/step':>9} {'share':>7}")
     for label, us in rows_out:
@@ -140,4 +142,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

@@ -30,7 +30,6 @@ Needs numpy only (the released file's matplotlib import is stubbed; its ``np.flo
 
 from __future__ import annotations
 
-import argparse
 import copy
 import sys
 import time
@@ -39,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mivecc_env import mivecc_v0
+from mivecc_env import cli_args, mivecc_v0
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.arrivals import ArrivalProcess
 from mivecc_env.sim.core import Simulator
@@ -261,13 +260,14 @@ def check_cloud_view(scene: types.ModuleType, states: int, vehicles: int = 120) 
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
     p.add_argument("--scene", type=Path, required=True,
                    help="traffic_interaction_scene.py of a clone of the authors' repository")
     p.add_argument("--streams", choices=["env", "batch", "poisson"], default="env")
-    p.add_argument("--density", type=float, nargs="+", default=[2100.0], help="veh/lane/h")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--density", type=cli_args.density, nargs="+", default=[2100.0],
+                   help="veh/lane/h")
+    p.add_argument("--seeds", type=cli_args.seed, nargs="+", default=[0, 1, 2])
+    p.add_argument("--steps", type=cli_args.count(1), default=3000)
     p.add_argument("--same-entry-step", action="store_true",
                    help="feed arrival times 1 ns earlier, so that an arrival at exactly a step "
                    "boundary enters on the same step as here (the released clock sums 0.1 s "
@@ -277,7 +277,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    "first step where a position differs by more than 1e-6 m")
     p.add_argument("--without-corner-reset", action="store_true",
                    help="lockstep with stale_corner_reset=False (the preset before it)")
-    p.add_argument("--check-cloud-view", type=int, metavar="STATES", default=0,
+    p.add_argument("--check-cloud-view", type=cli_args.count(0), metavar="STATES", default=0,
                    help="only compare the released cloud view (sim/cloud_view.py) with the "
                    "released code's on this many random 3x3 states")
     args = p.parse_args(argv)
@@ -326,4 +326,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

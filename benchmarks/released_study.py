@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from mivecc_env import metrics
+from mivecc_env import cli_args, metrics
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.model_presets import PAPER, RELEASED
 from mivecc_env.sim.core import Simulator
@@ -156,12 +156,12 @@ def cell(label: str, part: str, density: int, overrides: dict[str, Any], steps: 
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=3000)
+    ap = cli_args.Parser(description=__doc__.splitlines()[0])
+    ap.add_argument("--steps", type=cli_args.count(1), default=3000)
     ap.add_argument("--parts", nargs="+", default=["released", "divergence", "consistent"],
                     choices=["released", "schemes", "divergence", "consistent"])
     ap.add_argument("--out", type=Path, default=OUT)
-    ap.add_argument("--densities", type=int, nargs="+", default=list(DENSITIES),
+    ap.add_argument("--densities", type=cli_args.whole_density, nargs="+", default=list(DENSITIES),
                     help="densities of the released, schemes and consistent parts [veh/lane/h]")
     ap.add_argument("--schemes", nargs="+", default=["E", "EE", "EEC"],
                     choices=["E", "EE", "EEC"], help="schemes of the schemes part")
@@ -169,6 +169,7 @@ def main(argv: list[str] | None = None) -> None:
                     help="config fields for the schemes part, after model='released' (e.g. "
                     "cloud_view=window: the cloud view the shipped cloud was trained on)")
     args = ap.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
     from mivecc_agents.cli import parse_set_items
 
     scheme_over = parse_set_items(args.set)
@@ -198,7 +199,6 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
-    args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "released_study.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
@@ -240,4 +240,4 @@ def write(rows: list[dict[str, Any]], args: argparse.Namespace) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -18,13 +18,14 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 import csv
+import sys
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from mivecc_env import cli_args
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.metrics import batch_summary
 from mivecc_env.sim.core import Simulator
@@ -92,15 +93,19 @@ def near_miss_columns(per_seed: list[dict]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--rows", type=int, default=3)
-    parser.add_argument("--cols", type=int, default=3)
-    parser.add_argument("--densities", type=float, nargs="+", default=[300, 900, 1500, 2100])
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--steps", type=int, default=3000)
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rows", type=cli_args.count(1), default=3)
+    parser.add_argument("--cols", type=cli_args.count(1), default=3)
+    parser.add_argument("--densities", type=cli_args.density, nargs="+",
+                        default=[300, 900, 1500, 2100])
+    parser.add_argument("--seeds", type=cli_args.seed, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--steps", type=cli_args.count(1), default=3000)
     parser.add_argument("--readings", nargs="+", default=list(READINGS), choices=list(READINGS))
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/rules_study"))
     args = parser.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
+    for option in ("seeds", "densities"):
+        cli_args.check_distinct(f"--{option}", getattr(args, option))
 
     rows = []
     for reading in tqdm(args.readings, desc="rules study"):
@@ -111,7 +116,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
         for i, density in enumerate(args.densities):
             rows.append(_row(reading, density, runs[i * n:(i + 1) * n]))
 
-    args.out.mkdir(parents=True, exist_ok=True)
     with open(args.out / "rules_study.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -139,4 +143,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

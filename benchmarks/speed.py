@@ -62,7 +62,7 @@ from typing import Any
 
 import numpy as np
 
-from mivecc_env import mivecc_v0
+from mivecc_env import cli_args, mivecc_v0
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.core import Simulator
 
@@ -306,25 +306,15 @@ def write_outputs(out: Path, document: dict[str, Any], text: str) -> list[Path]:
 
 
 # ----------------------------------------------------------------------------------------------
-def _grid(text: str) -> tuple[int, int]:
-    try:
-        r, c = (int(x) for x in text.lower().split("x"))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"grid must look like 3x3, got {text!r}") from exc
-    if r < 1 or c < 1:
-        raise argparse.ArgumentTypeError(f"grid must have rows, cols >= 1, got {text!r}")
-    return r, c
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--grids", type=_grid, nargs="+", default=[(1, 1), (3, 3)],
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--grids", type=cli_args.grid, nargs="+", default=[(1, 1), (3, 3)],
                    help="grids as RxC (default 1x1 3x3)")
-    p.add_argument("--densities", type=float, nargs="+", default=[300, 900, 1500, 2100],
+    p.add_argument("--densities", type=cli_args.density, nargs="+", default=[300, 900, 1500, 2100],
                    help="veh/lane/h (default 300 900 1500 2100)")
-    p.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256],
+    p.add_argument("--batches", type=cli_args.count(1), nargs="+", default=[1, 16, 64, 256],
                    help="batch sizes of the bare core (default 1 16 64 256)")
-    p.add_argument("--env-batches", type=int, nargs="*", default=[1, 16, 64, 256],
+    p.add_argument("--env-batches", type=cli_args.count(1), nargs="*", default=[1, 16, 64, 256],
                    help="batch sizes of the batched env (default 1 16 64 256; none: skip)")
     p.add_argument("--env-schemes", nargs="*", default=["E", "EEC"], choices=("E", "EE", "EEC"),
                    help="schemes of the full ParallelEnv step (default E EEC; none: skip)")
@@ -332,12 +322,14 @@ def build_parser() -> argparse.ArgumentParser:
                    default=["unregulated", "right_before_left", "traffic_light"],
                    help="SUMO junction types (default unregulated right_before_left "
                    "traffic_light; unregulated is the peer of every ratio)")
-    p.add_argument("--steps", type=int, default=2000, help="timed steps (default 2000)")
-    p.add_argument("--warmup", type=int, default=600, help="untimed steps first (default 600)")
-    p.add_argument("--repeats", type=int, default=1,
+    p.add_argument("--steps", type=cli_args.count(1), default=2000,
+                   help="timed steps (default 2000)")
+    p.add_argument("--warmup", type=cli_args.count(0), default=600,
+                   help="untimed steps first (default 600)")
+    p.add_argument("--repeats", type=cli_args.count(1), default=1,
                    help="repeat every measurement (SUMO too, round-robin), keep the fastest "
                    "(default 1)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=cli_args.seed, default=0)
     p.add_argument("--no-sumo", action="store_true", help="skip SUMO even if installed")
     p.add_argument("--no-env", action="store_true",
                    help="skip the ParallelEnv and batched env rows")
@@ -353,20 +345,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the benchmark, print the tables and write the files; returns the exit status."""
     args = build_parser().parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
     if args.quick:
         args.grids, args.densities, args.batches = [(1, 1)], [900.0], [1, 4]
         args.env_batches = [2]
         args.steps, args.warmup, args.repeats = 30, 10, 1
-    for name in ("steps", "repeats"):
-        if getattr(args, name) < 1:
-            print(f"speed.py: error: --{name} must be >= 1", file=sys.stderr)
-            return 2
-    if args.warmup < 0 or any(b < 1 for b in [*args.batches, *args.env_batches]) or any(
-        d <= 0 for d in args.densities
-    ):
-        print("speed.py: error: --warmup >= 0, --batches/--env-batches >= 1, --densities > 0",
-              file=sys.stderr)
-        return 2
     use_sumo = not args.no_sumo and sumo_reference.sumo_available() and bool(args.sumo_junctions)
     env_schemes = [] if args.no_env else args.env_schemes
     env_batches = [] if args.no_env or not batched_available() else args.env_batches
@@ -444,4 +427,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

@@ -34,16 +34,18 @@ Usage: ``python benchmarks/sumo_reference.py --rows 3 --cols 3 --density 900``
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import numbers
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from typing import Any
+
+from mivecc_env import cli_args
 
 JUNCTION_TYPES = ("unregulated", "right_before_left", "priority", "traffic_light")
 STEP_LENGTH_S = 0.1
@@ -278,13 +280,15 @@ def run_sumo(
 
 def main(argv: list[str] | None = None) -> None:
     """Command-line entry: run one measurement and print it as JSON."""
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--rows", type=int, default=3, help="intersection rows")
-    p.add_argument("--cols", type=int, default=3, help="intersection columns")
-    p.add_argument("--density", type=float, default=900.0, help="veh/lane/h per entry lane")
-    p.add_argument("--steps", type=int, default=2000, help="timed 0.1 s steps")
-    p.add_argument("--warmup-steps", type=int, default=600, help="untimed 0.1 s steps")
-    p.add_argument("--seed", type=int, default=0, help="SUMO --seed")
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--rows", type=cli_args.count(1), default=3, help="intersection rows")
+    p.add_argument("--cols", type=cli_args.count(1), default=3, help="intersection columns")
+    p.add_argument("--density", type=cli_args.density, default=900.0,
+                   help="veh/lane/h per entry lane")
+    p.add_argument("--steps", type=cli_args.count(1), default=2000, help="timed 0.1 s steps")
+    p.add_argument("--warmup-steps", type=cli_args.count(0), default=600,
+                   help="untimed 0.1 s steps")
+    p.add_argument("--seed", type=cli_args.seed, default=0, help="SUMO --seed")
     p.add_argument("--junction-type", choices=JUNCTION_TYPES, default=JUNCTION_TYPES[0])
     a = p.parse_args(argv)
     res = run_sumo(a.rows, a.cols, a.density, a.steps, a.seed, a.warmup_steps, a.junction_type)
@@ -292,4 +296,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

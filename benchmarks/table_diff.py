@@ -21,13 +21,16 @@ Usage (seconds):
 
 from __future__ import annotations
 
-import argparse
+import csv
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from paper_table import RUN_KEY, improvement, read_runs_csv
+
+from mivecc_env import cli_args
 
 #: What must agree for two runs to count as identical (exact float equality).
 COMPARED = ("avg_travel_velocity_mps", "released_velocity_mps", "collisions")
@@ -111,7 +114,7 @@ def diff_markdown(a: list[dict[str, Any]], b: list[dict[str, Any]], names: Seque
 
 
 def main(argv: Sequence[str] | None = None) -> str:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
     parser.add_argument("a", type=Path, help="a paper_table.csv")
     parser.add_argument("b", type=Path, help="another paper_table.csv")
     parser.add_argument("--names", nargs=2, default=["A", "B"], metavar=("A", "B"),
@@ -124,6 +127,8 @@ def main(argv: Sequence[str] | None = None) -> str:
             rows = read_runs_csv(path)
         except OSError as exc:
             parser.error(f"{option}: cannot read {path}: {exc.strerror}")
+        except (UnicodeDecodeError, csv.Error) as exc:
+            parser.error(f"{option}: {path} is not a paper_table.csv ({exc})")
         missing = [k for k in (*RUN_KEY, *COMPARED) if rows and k not in rows[0]]
         if not rows or missing:
             parser.error(f"{option}: {path} is not a paper_table.csv (no runs, or no column "
@@ -140,4 +145,4 @@ def main(argv: Sequence[str] | None = None) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

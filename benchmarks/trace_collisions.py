@@ -18,7 +18,7 @@ shipped released pair's one event on the paper table's seeds, ``docs/training.md
 
 from __future__ import annotations
 
-import argparse
+import sys
 from collections import deque
 from typing import Any
 
@@ -27,6 +27,7 @@ import numpy as np
 from mivecc_agents.cli import DEFAULT_EVAL_THREADS, check_threads, set_inference_threads
 from mivecc_agents.evaluation import evaluate_scheme
 from mivecc_agents.policies import pretrained_policies
+from mivecc_env import cli_args
 from mivecc_env.config import ConfigError
 
 
@@ -71,19 +72,20 @@ class CollisionTracer:
 
 def main(argv: list[str] | None = None) -> list[dict]:
     """Run one episode and return one record per step with a collision event."""
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--rows", type=int, default=3)
-    p.add_argument("--cols", type=int, default=3)
-    p.add_argument("--density", type=float, default=2100.0, help="veh/lane/h")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--steps", type=int, default=3000)
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--rows", type=cli_args.count(1), default=3)
+    p.add_argument("--cols", type=cli_args.count(1), default=3)
+    p.add_argument("--density", type=cli_args.density, default=2100.0, help="veh/lane/h")
+    p.add_argument("--seed", type=cli_args.seed, default=0)
+    p.add_argument("--steps", type=cli_args.count(1), default=3000)
     p.add_argument("--model", default="released", choices=["paper", "released"])
     p.add_argument("--scheme", default="E", choices=["E", "EE", "EEC"],
                    help="EE / EEC act with the model's shipped policies")
-    p.add_argument("--history", type=int, default=30, help="steps printed before an event")
+    p.add_argument("--history", type=cli_args.count(0), default=30,
+                   help="steps printed before an event")
     p.add_argument("--edge", default=None, help="edge checkpoint (default: the shipped one)")
     p.add_argument("--cloud", default=None, help="cloud checkpoint (default: the shipped one)")
-    p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
+    p.add_argument("--threads", type=cli_args.count(1), default=DEFAULT_EVAL_THREADS,
                    help="torch threads of the policies (default %(default)s, as `mivecc "
                         "evaluate` and paper_table.py: another count rounds the networks "
                         "differently, and the episode drifts from the table's)")
@@ -108,4 +110,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

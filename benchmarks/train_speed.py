@@ -29,7 +29,6 @@ Usage (the table in docs/performance.md and docs/training.md):
 
 from __future__ import annotations
 
-import argparse
 import csv
 import os
 import sys
@@ -48,6 +47,7 @@ from mivecc_agents import training
 from mivecc_agents.learner import DDPGLearner
 from mivecc_agents.networks import make_actor, make_critic
 from mivecc_agents.presets import get_preset, thread_settings
+from mivecc_env import cli_args
 
 #: (stage, grid rows = cols, densities) of the two stages, as the documented commands train.
 STAGE_SETUPS = {"edge": (1, (900.0, 1500.0, 2100.0)), "cloud": (3, (1500.0,))}
@@ -171,26 +171,27 @@ def _median(xs: list[float]) -> float:
 
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = cli_args.Parser(description=__doc__.splitlines()[0])
     parser.add_argument("--stages", nargs="+", default=["edge", "cloud"], choices=["edge", "cloud"])
-    parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--collect-frames", type=int, nargs=2, default=[1200, 300],
+    parser.add_argument("--repeats", type=cli_args.count(1), default=2)
+    parser.add_argument("--collect-frames", type=cli_args.count(1), nargs=2, default=[1200, 300],
                         metavar=("EDGE", "CLOUD"), help="old-path frames timed per repeat "
                         "(the new path times 10x as many)")
-    parser.add_argument("--envs-per-density", type=int, nargs=2, default=[16, 48],
+    parser.add_argument("--envs-per-density", type=cli_args.count(1), nargs=2, default=[16, 48],
                         metavar=("EDGE", "CLOUD"), help="new path: environments per density")
-    parser.add_argument("--steps-per-env", type=int, default=100,
+    parser.add_argument("--steps-per-env", type=cli_args.count(1), default=100,
                         help="collection: steps of each env per batch (the preset's 100)")
-    parser.add_argument("--learn-seconds", type=float, default=4.0)
+    parser.add_argument("--learn-seconds", type=cli_args.number(0.0, low_ok=False), default=4.0)
     parser.add_argument("--other-threads", action="store_true",
                         help="also time the new learner at the thread count not chosen "
                         "(OMP_WAIT_POLICY=PASSIVE)")
-    parser.add_argument("--e2e-frames", type=int, nargs=2, default=[2100, 24000],
+    parser.add_argument("--e2e-frames", type=cli_args.count(1), nargs=2, default=[2100, 24000],
                         metavar=("OLD", "NEW"), help="stage-I train() frames (0: skip)")
-    parser.add_argument("--e2e-steps-per-env", type=int, nargs=2, default=[100, 100],
+    parser.add_argument("--e2e-steps-per-env", type=cli_args.count(1), nargs=2, default=[100, 100],
                         metavar=("OLD", "NEW"), help="steps per env per iteration")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/train_speed"))
     args = parser.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
     warnings.simplefilter("ignore")
 
     results: dict[tuple[str, str, str], list[float]] = {}
@@ -249,7 +250,6 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     command = "python benchmarks/train_speed.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
     text = f"Command: `{command.strip()}` ({args.repeats} repeats, medians)\n\n" + "\n".join(lines)
-    args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "train_speed.md").write_text(text + "\n")
     with open(args.out / "train_speed.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["stage"])
@@ -260,4 +260,4 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -29,7 +29,7 @@ import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 from mivecc_agents.evaluation import (
     SCHEMES,
@@ -38,7 +38,7 @@ from mivecc_agents.evaluation import (
     evaluate_batch,
     evaluate_scheme,
 )
-from mivecc_env import __version__
+from mivecc_env import __version__, cli_args
 from mivecc_env.config import ALIASES, ConfigError, MiVeCCConfig, describe_fields
 from mivecc_env.config import from_overrides as _config_from
 
@@ -297,16 +297,41 @@ def _evaluation_config(args: argparse.Namespace, overrides: dict[str, Any]) -> M
                                  "density_vplh": args.density})
 
 
+def _check_unused_checkpoints(args: argparse.Namespace) -> None:
+    """A scheme without coordinators (E, signalized) ignores ``--edge-checkpoint`` and
+    ``--cloud-checkpoint``: a given file must still load (a wrong path is an error), and a
+    warning says that it is not used."""
+    from mivecc_agents.checkpoints import CheckpointError
+    from mivecc_agents.policies import load_policy
+
+    for kind in ("edge", "cloud"):
+        path = getattr(args, f"{kind}_checkpoint")
+        if path is None:
+            continue
+        try:
+            load_policy(path, expected_kind=kind)
+        except CheckpointError as exc:
+            raise ConfigError(f"--{kind}-checkpoint: {exc}") from exc
+        print(f"{PROG}: warning: --{kind}-checkpoint: scheme {args.scheme} runs without "
+              "coordinators: the policy is ignored", file=sys.stderr)
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Run ``evaluate``: one episode per seed, print and optionally save the metrics."""
     overrides = config_overrides_from_args(args)
     seeds = args.seeds if args.seeds else [args.seed]
+    try:
+        cli_args.check_distinct("--seeds", seeds)
+    except cli_args.InputError as exc:
+        raise ConfigError(str(exc)) from None
     threads = check_threads("--threads", args.threads)
     policies = {}
     if args.scheme in ("EE", "EEC"):
         config = _evaluation_config(args, overrides)
         set_inference_threads(threads)
         policies = evaluation_policies(args, config, overrides)
+    else:
+        _check_unused_checkpoints(args)
     if len(seeds) == 1:
         results = [evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                                    seeds[0], policies=policies, progress=not args.no_progress,
@@ -424,17 +449,9 @@ def _stage2_config(args: argparse.Namespace) -> MiVeCCConfig:
 COMMANDS.append(add_train_parser)
 
 
-class _OneLineErrors(argparse.ArgumentParser):
-    """An argument parser whose usage errors are one line on stderr (exit status 2), pointing
-    to ``--help`` instead of printing the whole usage block."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with one subparser per entry of :data:`COMMANDS`."""
-    parser = _OneLineErrors(
+    parser = cli_args.Parser(
         prog=PROG, description="MiVeCC: multi-intersection vehicular cooperative control.",
     )
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")

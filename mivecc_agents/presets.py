@@ -135,6 +135,8 @@ class TrainPreset:
     reward_shaping: Literal["none", "potential"] = "none"
 
     def __post_init__(self) -> None:
+        for name, rule in _FIELD_RANGES.items():
+            _check_field(name, getattr(self, name), *rule)
         if not (math.isfinite(self.gamma) and 0.0 <= self.gamma <= 1.0):
             raise ValueError(f"gamma: must be a number in [0, 1], got {self.gamma!r}")
         if self.reward_shaping == "potential" and self.gamma == 1.0:
@@ -162,6 +164,52 @@ class TrainPreset:
     def to_dict(self) -> dict[str, Any]:
         """Fields as a plain dict."""
         return dataclasses.asdict(self)
+
+
+#: Range of each numeric field: (integer?, lowest, lowest allowed?, highest or None, ``None``
+#: allowed?). ``gamma``, ``actor_preact_bound`` and ``actor_preact_weight`` are checked in
+#: ``__post_init__`` with their own messages.
+_FIELD_RANGES: dict[str, tuple[bool, float, bool, float | None, bool]] = {
+    "lr_actor": (False, 0.0, True, None, False),
+    "lr_critic": (False, 0.0, True, None, False),
+    "batch_size": (True, 1, True, None, False),
+    "tau": (False, 0.0, True, 1.0, False),
+    "sigma_init": (False, 0.0, True, None, False),
+    "sigma_end": (False, 0.0, True, None, False),
+    "sigma_anneal_fraction": (False, 0.0, True, 1.0, False),
+    "frames_per_batch": (True, 1, True, None, False),
+    "updates_per_frame": (False, 0.0, False, None, False),
+    "envs": (True, 1, True, None, False),
+    "envs_per_density": (True, 1, True, None, True),
+    "warmup_frames": (True, 0, True, None, False),
+    "buffer_size": (True, 1, True, None, False),
+    "buffer_memory_mb": (True, 1, True, None, False),
+    "max_grad_norm": (False, 0.0, False, None, True),
+    "episode_steps": (True, 1, True, None, False),
+    "raw_edge_period": (True, 0, True, None, False),
+    "eval_every_frames": (True, 0, True, None, False),
+    "eval_steps": (True, 1, True, None, False),
+    "eval_seeds": (True, 1, True, None, False),
+}
+
+
+def _check_field(
+    name: str, value: Any, integer: bool, lo: float, lo_ok: bool, hi: float | None,
+    optional: bool,
+) -> None:
+    """``ValueError`` naming ``name`` and its allowed range unless ``value`` is in it."""
+    if value is None and optional:
+        return
+    kind = "an integer" if integer else "a finite number"
+    allowed = f"{kind} {'>=' if lo_ok else '>'} {lo:g}" if hi is None else (
+        f"{kind} in {'[' if lo_ok else '('}{lo:g}, {hi:g}]")
+    if optional:
+        allowed += " or none"
+    is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    ok = is_number and (not integer or float(value).is_integer()) and math.isfinite(value)
+    ok = ok and (value >= lo if lo_ok else value > lo) and (hi is None or value <= hi)
+    if not ok:
+        raise ValueError(f"{name}: must be {allowed}, got {value!r}")
 
 
 PRESETS: dict[str, TrainPreset] = {

@@ -45,6 +45,15 @@ def _train_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
         (["--preset-set", "actor_preact_weight=-1"],
          "actor_preact_weight: must be a finite number >= 0, got -1.0"),
         (["--preset-set", "gamma=1.5"], "gamma: must be a number in [0, 1], got 1.5"),
+        (["--preset-set", "batch_size=0"], "batch_size: must be an integer >= 1, got 0"),
+        (["--preset-set", "tau=5"], "tau: must be a finite number in [0, 1], got 5.0"),
+        (["--preset-set", "lr_critic=-0.1"], "lr_critic: must be a finite number >= 0, got -0.1"),
+        (["--preset-set", "updates_per_frame=0"],
+         "updates_per_frame: must be a finite number > 0, got 0.0"),
+        (["--preset-set", "max_grad_norm=0"],
+         "max_grad_norm: must be a finite number > 0 or none, got 0.0"),
+        (["--preset-set", "warmup_frames=-1"], "warmup_frames: must be an integer >= 0, got -1"),
+        (["--preset-set", "eval_steps=0"], "eval_steps: must be an integer >= 1, got 0"),
         (["--preset-set", "reward_shaping=potential", "gamma=1"],
          "reward_shaping: 'potential' needs gamma < 1"),
     ],
@@ -241,3 +250,27 @@ def test_a_file_that_is_not_a_checkpoint_is_named_in_one_short_line(
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1, err
     assert "not a readable mivecc checkpoint" in err and len(err) < 300, err
+
+
+def test_evaluate_checks_a_checkpoint_its_scheme_ignores(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    # scheme E runs without coordinators: a wrong path is still an error, a good file a warning
+    code = main(["evaluate", "--steps", "5", "--edge-checkpoint", str(tmp_path / "none.pt"),
+                 "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "--edge-checkpoint" in err and "no such checkpoint" in err, err
+    from mivecc_agents.policies import pretrained_path
+
+    code = main(["evaluate", "--steps", "5", "--scheme", "signalized", "--cloud-checkpoint",
+                 str(pretrained_path("cloud", "paper")), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 0
+    assert "--cloud-checkpoint: scheme signalized runs without coordinators" in err
+
+
+def test_evaluate_refuses_a_repeated_seed(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["evaluate", "--steps", "5", "--seeds", "0", "1", "0", "--no-progress"])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err.strip() == "mivecc: error: --seeds: each value at most once, got 0 twice"

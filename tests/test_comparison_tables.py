@@ -86,9 +86,20 @@ def test_tabulate_only_rebuilds_from_csvs_and_the_last_csv_wins(tmp_path: Path) 
     (["--steps-for", "optimisation:1000"], "--steps-for"),
     (["--steps-for", "bogus=10"], "--steps-for"),
 ])
-def test_bad_arguments_are_named(argv: list[str], match: str, tmp_path: Path) -> None:
-    with pytest.raises(SystemExit, match=match):
-        comparison.main([*argv, "--tabulate-only", "--out", str(tmp_path)])
+def test_bad_arguments_are_named(argv: list[str], match: str, tmp_path: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """One line on stderr naming the option, exit status 2 (as ``python comparison.py``)."""
+    from mivecc_env import cli_args
+
+    def run() -> int:
+        return comparison.main([*argv, "--tabulate-only", "--out", str(tmp_path)])
+
+    try:
+        status = cli_args.run(run, prog="comparison.py")
+    except SystemExit as exc:  # argparse's usage errors exit inside main
+        status = exc.code
+    err = capsys.readouterr().err
+    assert status == 2 and match in err and err.count("\n") == 1
 
 
 def test_optimisation_cost_benchmark_counts_schedules() -> None:

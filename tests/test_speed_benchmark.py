@@ -90,7 +90,15 @@ def test_batched_measurement_counts_vehicles() -> None:
     assert r["engine"] == "batched B=3" and r["mean_vehicles"] > 0
 
 
-def test_bad_arguments_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
-    assert speed.main(["--steps", "0", "--no-progress"]) == 2
-    with pytest.raises(SystemExit):
-        speed.main(["--grids", "3by3"])
+@pytest.mark.parametrize(("argv", "expected"), [
+    (["--steps", "0", "--no-progress"], "argument --steps: must be an integer >= 1, got '0'"),
+    (["--grids", "3by3"], "argument --grids: must look like 3x3"),
+    (["--densities", "-1"], "argument --densities: must be a number in [1.0, 3600.0]"),
+])
+def test_bad_arguments_exit_2(
+    argv: list[str], expected: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exc:
+        speed.main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and expected in err, err

@@ -1,0 +1,129 @@
+"""Bad input to the benchmark scripts: one line on stderr naming the option and its range, exit
+status 2, no traceback (``mivecc_env.cli_args``, shared with the ``mivecc`` CLI)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import math
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+from mivecc_env import cli_args
+from mivecc_env.config import ConfigError
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def _script(name: str) -> ModuleType:
+    """A benchmark script as a module (by path: it is not a package)."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(BENCHMARKS))  # the scripts import their siblings
+    spec = importlib.util.spec_from_file_location(f"script_{name}", BENCHMARKS / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _status(name: str, argv: list[str]) -> int:
+    """Exit status of ``python benchmarks/<name>.py *argv`` (in this process)."""
+    module = _script(name)
+    try:
+        return cli_args.run(lambda: module.main(argv), prog=f"{name}.py")
+    except SystemExit as exc:  # argparse's usage errors exit inside main
+        return int(exc.code or 0)
+
+
+@pytest.mark.parametrize(("name", "argv", "expected"), [
+    ("paper_table", ["--steps", "0"], "argument --steps: must be an integer >= 1, got '0'"),
+    ("paper_table", ["--seeds", "-1"], "argument --seeds: must be an integer >= 0, got '-1'"),
+    ("paper_table", ["--densities", "0"],
+     "argument --densities: must be a number in [1.0, 3600.0], got 0.0"),
+    ("paper_table", ["--grids", "20x20"], "argument --grids: must be an integer in [1, 16]"),
+    ("paper_table", ["--seeds", "1", "1"], "--seeds: each value at most once, got 1 twice"),
+    ("rules_study", ["--densities", "nan"], "argument --densities: must be a number in"),
+    ("rules_study", ["--out", "NOTES/sub"], "--out: cannot create NOTES/sub"),
+    ("speed", ["--grids", "0x3"], "argument --grids: must be an integer in [1, 16], got 0"),
+    ("speed", ["--repeats", "0"], "argument --repeats: must be an integer >= 1, got '0'"),
+    ("profile_step", ["--grid", "3"], "argument --grid: must look like 3x3 (ROWSxCOLS)"),
+    ("profile_step", ["--batched-env", "0"], "argument --batched-env: must be an integer >= 1"),
+    ("comparison", ["--densities", "2100.5"], "argument --densities: must be a whole number"),
+    ("heatmaps", ["--cell", "0"], "argument --cell: must be a finite number > 0, got '0'"),
+    ("train_speed", ["--repeats", "0"], "argument --repeats: must be an integer >= 1"),
+    ("critic_check", ["--kind", "edge", "--constants", "5"],
+     "argument --constants: must be a number in [-3, 3], got '5'"),
+    ("table_diff", ["NOTES", "NOTES"], "a: NOTES is not a paper_table.csv"),
+])
+def test_bad_script_argument_is_one_line_exit_2(
+    name: str, argv: list[str], expected: str, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+) -> None:
+    monkeypatch.setattr(sys, "argv", [f"{name}.py"])  # argparse's program name
+    monkeypatch.chdir(tmp_path)
+    Path("NOTES").write_text("root:x:0:0:root:/root:/bin/bash\nnot, a, table\n")
+    status = _status(name, argv)
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert "Traceback" not in err and err.count("\n") == 1, err
+    assert f"{name}.py: error: " in err and expected in err, err
+
+
+def test_count_and_number_types() -> None:
+    assert cli_args.count(0)("0") == 0 and cli_args.count(1)("7") == 7
+    for bad in ("0", "-3", "1.5", "x", ""):
+        with pytest.raises(argparse.ArgumentTypeError, match="integer >= 1"):
+            cli_args.count(1)(bad)
+    assert cli_args.number(0.0, low_ok=False)("0.5") == 0.5
+    for bad in ("0", "nan", "inf", "-1", "x"):
+        with pytest.raises(argparse.ArgumentTypeError, match="finite number > 0"):
+            cli_args.number(0.0, low_ok=False)(bad)
+    assert cli_args.number(-3.0, 3.0)("-3") == -3.0
+    with pytest.raises(argparse.ArgumentTypeError, match=r"\[-3, 3\]"):
+        cli_args.number(-3.0, 3.0)("3.5")
+
+
+def test_config_ranged_types() -> None:
+    assert cli_args.density("2100") == 2100.0
+    assert cli_args.whole_density("900") == 900 and isinstance(cli_args.whole_density("900"), int)
+    assert cli_args.grid("3X2") == (3, 2)
+    for parse, bad in ((cli_args.density, "0"), (cli_args.density, "inf"),
+                       (cli_args.whole_density, "2100.5"), (cli_args.grid, "17x1"),
+                       (cli_args.grid, "3x"), (cli_args.grid, "-1x2")):
+        with pytest.raises(argparse.ArgumentTypeError):
+            parse(bad)
+    assert not math.isnan(cli_args.density("1"))
+
+
+def test_check_distinct() -> None:
+    cli_args.check_distinct("--seeds", [0, 1, 2])
+    cli_args.check_distinct("--seeds", None)
+    with pytest.raises(cli_args.InputError, match="--grids: each value at most once, got"):
+        cli_args.check_distinct("--grids", [(1, 1), (3, 3), (1, 1)])
+
+
+def test_run_maps_input_errors_to_exit_2_and_lets_bugs_through(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    def config_error() -> None:
+        raise ConfigError("steps: must be an integer >= 1, got 0")
+
+    def missing_file() -> None:
+        (tmp_path / "absent.csv").read_text()
+
+    assert cli_args.run(config_error, prog="x.py") == 2
+    assert capsys.readouterr().err == "x.py: error: steps: must be an integer >= 1, got 0\n"
+    assert cli_args.run(missing_file, prog="x.py") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("x.py: error: No such file or directory: ") and "absent.csv" in err
+    assert cli_args.run(lambda: 3) == 3 and cli_args.run(lambda: [1]) == 0
+    assert cli_args.run(lambda: None) == 0
+
+    def bug() -> None:
+        raise ZeroDivisionError("a bug, not bad input")
+
+    with pytest.raises(ZeroDivisionError):
+        cli_args.run(bug)
