@@ -254,6 +254,8 @@ class BatchedMiVeCCEnv:
         envs = np.arange(self.batch_size)
         if seed is not None:
             if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+                if seed < 0:
+                    raise ValueError(f"seed: must be an integer >= 0, got {int(seed)}")
                 seeds = [int(seed) + b for b in range(self.batch_size)]
             else:
                 seeds = self._seed_list(seed, self.batch_size, "seed")

@@ -163,6 +163,10 @@ def test_bad_input_names_the_argument() -> None:
         env.reset_at(np.ones(3, dtype=bool))
     with pytest.raises(ValueError, match="seed"):
         env.reset_at([0, 1], seed=[1])
+    with pytest.raises(ValueError, match=r"^seed: must be an integer >= 0, got -1$"):
+        env.reset(seed=-1)
+    with pytest.raises(ValueError, match=r"^seed: seeds must be >= 0, got \[-2\]$"):
+        env.reset_at([1], seed=-2)
     with pytest.raises(ConfigError, match="densities"):
         BatchedMiVeCCEnv(batch_size=2, densities=[900.0])
     with pytest.raises(ConfigError, match="densities"):
