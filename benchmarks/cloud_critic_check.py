@@ -9,10 +9,13 @@ Usage (about 10 s on an idle 2-core machine):
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from typing import Any
 
 import critic_check
+
+from mivecc_env import cli_args
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
@@ -20,4 +23,4 @@ def main(argv: Sequence[str] | None = None) -> list[dict[str, Any]]:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(cli_args.run(main))

@@ -17,7 +17,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import statistics
@@ -25,6 +24,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+from mivecc_env import cli_args
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_RUNS = HERE.parent / "docs" / "results" / "performance"
@@ -46,8 +47,8 @@ ENGINE_ROWS = (
 )
 
 
-class SummaryError(ValueError):
-    """A run file that is missing, unreadable or lacks a field the summary needs."""
+class SummaryError(cli_args.InputError):
+    """A run file that is unreadable or lacks a field the summary needs."""
 
 
 def machine_label(machine: dict[str, Any]) -> str:
@@ -125,25 +126,19 @@ def markdown(records: list[dict[str, Any]]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Print the summary and write it to ``--out``; returns the exit status."""
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
     p.add_argument("--runs", type=Path, default=DEFAULT_RUNS,
                    help="folder of session<N>/speed_run<R>.json files "
                    "(default docs/results/performance)")
     p.add_argument("--out", type=Path, default=None,
                    help="markdown file to write (default <runs>/summary.md)")
     args = p.parse_args(argv)
-    try:
-        records = load_runs(args.runs)
-    except SummaryError as err:
-        print(f"speed_summary.py: error: {err}", file=sys.stderr)
-        return 2
+    records = load_runs(args.runs)
     if not records:
-        print(f"speed_summary.py: error: --runs {args.runs}: no session<N>/speed_run<R>.json "
-              "files", file=sys.stderr)
-        return 2
+        raise SummaryError(f"--runs {args.runs}: no session<N>/speed_run<R>.json files")
     text = markdown(records)
     out = args.out if args.out is not None else args.runs / "summary.md"
-    out.parent.mkdir(parents=True, exist_ok=True)
+    cli_args.writable_dir("--out", out.parent)
     out.write_text(text, encoding="utf-8")
     print(text)
     print(f"wrote {out}")
@@ -151,4 +146,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

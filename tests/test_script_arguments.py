@@ -127,3 +127,14 @@ def test_run_maps_input_errors_to_exit_2_and_lets_bugs_through(
 
     with pytest.raises(ZeroDivisionError):
         cli_args.run(bug)
+
+
+@pytest.mark.parametrize("path", sorted(BENCHMARKS.glob("*.py")), ids=lambda p: p.name)
+def test_every_script_with_options_uses_the_shared_entry(path: Path) -> None:
+    """A script that takes options parses them with ``cli_args.Parser`` and runs through
+    ``cli_args.run`` (a new script copying an old one keeps the one-line errors)."""
+    text = path.read_text(encoding="utf-8")
+    if "main(" not in text or path.name in ("machine_info.py", "__init__.py"):
+        return
+    assert 'sys.exit(cli_args.run(main))' in text, path.name
+    assert "argparse.ArgumentParser(" not in text, path.name

@@ -20,6 +20,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import speed_summary  # noqa: E402
 
+from mivecc_env import cli_args  # noqa: E402
+
 RUNS = ROOT / "docs" / "results" / "performance"
 
 
@@ -97,11 +99,11 @@ def test_corrupt_run_file_is_one_line_exit_2(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], content: str
 ) -> None:
     _write(tmp_path, 3, 1, content)
-    assert speed_summary.main(["--runs", str(tmp_path)]) == 2
+    assert cli_args.run(lambda: speed_summary.main(["--runs", str(tmp_path)]), "s.py") == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "speed_run1.json" in err and "not a speed.py result" in err
 
 
 def test_no_runs_is_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert speed_summary.main(["--runs", str(tmp_path)]) == 2
+    assert cli_args.run(lambda: speed_summary.main(["--runs", str(tmp_path)]), "s.py") == 2
     assert "no session<N>/speed_run<R>.json files" in capsys.readouterr().err
