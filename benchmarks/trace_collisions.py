@@ -24,11 +24,10 @@ from typing import Any
 
 import numpy as np
 
-from mivecc_agents.cli import DEFAULT_EVAL_THREADS, check_threads, set_inference_threads
+from mivecc_agents.cli import DEFAULT_EVAL_THREADS, set_inference_threads
 from mivecc_agents.evaluation import evaluate_scheme
 from mivecc_agents.policies import pretrained_policies
 from mivecc_env import cli_args
-from mivecc_env.config import ConfigError
 
 
 class CollisionTracer:
@@ -92,12 +91,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = p.parse_args(argv)
     if args.scheme == "E" and (args.edge or args.cloud):
         p.error("--edge / --cloud: only with --scheme EE or EEC (E runs the rules alone)")
-    try:
-        threads = check_threads("--threads", args.threads)
-    except ConfigError as exc:
-        p.error(str(exc))
     if args.scheme != "E":
-        set_inference_threads(threads)
+        set_inference_threads(args.threads)
 
     policies = (pretrained_policies(args.model, edge=args.edge, cloud=args.cloud)
                 if args.scheme != "E" else {})

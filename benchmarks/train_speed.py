@@ -185,7 +185,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--other-threads", action="store_true",
                         help="also time the new learner at the thread count not chosen "
                         "(OMP_WAIT_POLICY=PASSIVE)")
-    parser.add_argument("--e2e-frames", type=cli_args.count(1), nargs=2, default=[2100, 24000],
+    parser.add_argument("--e2e-frames", type=cli_args.count(0), nargs=2, default=[2100, 24000],
                         metavar=("OLD", "NEW"), help="stage-I train() frames (0: skip)")
     parser.add_argument("--e2e-steps-per-env", type=cli_args.count(1), nargs=2, default=[100, 100],
                         metavar=("OLD", "NEW"), help="steps per env per iteration")

@@ -251,7 +251,7 @@ def evaluation_policies(
     return policies
 
 
-def check_threads(option: str, threads: Any) -> int:
+def _check_threads(option: str, threads: Any) -> int:
     """``threads`` as an int, or ``ConfigError`` naming ``option`` if it is not >= 1."""
     if threads is None or threads < 1:
         raise ConfigError(f"{option}: must be an integer >= 1, got {threads!r}")
@@ -320,11 +320,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Run ``evaluate``: one episode per seed, print and optionally save the metrics."""
     overrides = config_overrides_from_args(args)
     seeds = args.seeds if args.seeds else [args.seed]
-    try:
-        cli_args.check_distinct("--seeds", seeds)
-    except cli_args.InputError as exc:
-        raise ConfigError(str(exc)) from None
-    threads = check_threads("--threads", args.threads)
+    cli_args.check_distinct("--seeds", seeds)
+    threads = _check_threads("--threads", args.threads)
     policies = {}
     if args.scheme in ("EE", "EEC"):
         config = _evaluation_config(args, overrides)

@@ -3,8 +3,8 @@
 Bad input to a command is one line on stderr and exit status 2, never a traceback: the
 :class:`Parser` prints argparse's errors on one line, the types below check each value's range
 (the message names the option and the allowed range), and :func:`run` turns the input errors a
-run can still raise (:class:`~mivecc_env.config.ConfigError`, a corrupt checkpoint,
-:class:`InputError`, a path that cannot be read or written) into that line too.
+run can still raise (:class:`~mivecc_env.config.ConfigError` and its :class:`InputError`, a corrupt
+checkpoint, a path that cannot be read or written) into that line too.
 
 Scripts use it as::
 
@@ -35,8 +35,9 @@ __all__ = [
 ]
 
 
-class InputError(ValueError):
-    """Bad input a script finds after parsing (a file, a combination of options)."""
+class InputError(ConfigError):
+    """Bad input a script finds after parsing (a file, a combination of options); a
+    :class:`ConfigError`, so that every entry reporting those reports it too."""
 
 
 class Parser(argparse.ArgumentParser):
@@ -149,7 +150,7 @@ def check_distinct(option: str, values: Sequence[Any] | None) -> None:
 def _input_errors() -> tuple[type[BaseException], ...]:
     """The exception types that mean bad input (a checkpoint error only if checkpoints were
     loaded: without the module none can have been raised)."""
-    errors: list[type[BaseException]] = [ConfigError, InputError]
+    errors: list[type[BaseException]] = [ConfigError]
     checkpoints = sys.modules.get("mivecc_agents.checkpoints")
     if checkpoints is not None:
         errors.append(checkpoints.CheckpointError)

@@ -138,3 +138,25 @@ def test_every_script_with_options_uses_the_shared_entry(path: Path) -> None:
         return
     assert 'sys.exit(cli_args.run(main))' in text, path.name
     assert "argparse.ArgumentParser(" not in text, path.name
+
+
+class _ParsedError(Exception):
+    """Raised by the patched parser once the options are parsed (nothing runs)."""
+
+
+@pytest.mark.parametrize(("name", "argv"), [
+    ("train_speed", ["--e2e-frames", "0", "0"]),  # documented: 0 skips the end-to-end runs
+    ("trace_collisions", ["--history", "0"]),
+    ("released_reference", ["--scene", "scene.py", "--check-cloud-view", "0"]),
+])
+def test_documented_zero_values_still_parse(
+    name: str, argv: list[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    original = cli_args.Parser.parse_args
+
+    def parse_then_stop(self: argparse.ArgumentParser, args=None, namespace=None):
+        raise _ParsedError(original(self, args, namespace))
+
+    monkeypatch.setattr(cli_args.Parser, "parse_args", parse_then_stop)
+    with pytest.raises(_ParsedError):
+        _script(name).main(argv)
