@@ -23,7 +23,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from mivecc_env.config import MiVeCCConfig
+from mivecc_env.config import MiVeCCConfig, Range, check_range
 
 __all__ = [
     "DEFAULT_PRESET",
@@ -135,8 +135,8 @@ class TrainPreset:
     reward_shaping: Literal["none", "potential"] = "none"
 
     def __post_init__(self) -> None:
-        for name, rule in _FIELD_RANGES.items():
-            _check_field(name, getattr(self, name), *rule)
+        for name, rng in _FIELD_RANGES.items():
+            check_range(name, getattr(self, name), rng, optional=name in _OPTIONAL_FIELDS)
         if not (math.isfinite(self.gamma) and 0.0 <= self.gamma <= 1.0):
             raise ValueError(f"gamma: must be a number in [0, 1], got {self.gamma!r}")
         if self.reward_shaping == "potential" and self.gamma == 1.0:
@@ -166,50 +166,31 @@ class TrainPreset:
         return dataclasses.asdict(self)
 
 
-#: Range of each numeric field: (integer?, lowest, lowest allowed?, highest or None, ``None``
-#: allowed?). ``gamma``, ``actor_preact_bound`` and ``actor_preact_weight`` are checked in
-#: ``__post_init__`` with their own messages.
-_FIELD_RANGES: dict[str, tuple[bool, float, bool, float | None, bool]] = {
-    "lr_actor": (False, 0.0, True, None, False),
-    "lr_critic": (False, 0.0, True, None, False),
-    "batch_size": (True, 1, True, None, False),
-    "tau": (False, 0.0, True, 1.0, False),
-    "sigma_init": (False, 0.0, True, None, False),
-    "sigma_end": (False, 0.0, True, None, False),
-    "sigma_anneal_fraction": (False, 0.0, True, 1.0, False),
-    "frames_per_batch": (True, 1, True, None, False),
-    "updates_per_frame": (False, 0.0, False, None, False),
-    "envs": (True, 1, True, None, False),
-    "envs_per_density": (True, 1, True, None, True),
-    "warmup_frames": (True, 0, True, None, False),
-    "buffer_size": (True, 1, True, None, False),
-    "buffer_memory_mb": (True, 1, True, None, False),
-    "max_grad_norm": (False, 0.0, False, None, True),
-    "episode_steps": (True, 1, True, None, False),
-    "raw_edge_period": (True, 0, True, None, False),
-    "eval_every_frames": (True, 0, True, None, False),
-    "eval_steps": (True, 1, True, None, False),
-    "eval_seeds": (True, 1, True, None, False),
+#: Range of each numeric field (``gamma``, ``actor_preact_bound`` and ``actor_preact_weight``
+#: are checked in ``__post_init__`` with their own messages); the optional ones may be None.
+_FIELD_RANGES: dict[str, Range] = {
+    "lr_actor": Range(0.0, math.inf),
+    "lr_critic": Range(0.0, math.inf),
+    "batch_size": Range(1, math.inf, integer=True),
+    "tau": Range(0.0, 1.0),
+    "sigma_init": Range(0.0, math.inf),
+    "sigma_end": Range(0.0, math.inf),
+    "sigma_anneal_fraction": Range(0.0, 1.0),
+    "frames_per_batch": Range(1, math.inf, integer=True),
+    "updates_per_frame": Range(0.0, math.inf, lo_open=True),
+    "envs": Range(1, math.inf, integer=True),
+    "envs_per_density": Range(1, math.inf, integer=True),
+    "warmup_frames": Range(0, math.inf, integer=True),
+    "buffer_size": Range(1, math.inf, integer=True),
+    "buffer_memory_mb": Range(1, math.inf, integer=True),
+    "max_grad_norm": Range(0.0, math.inf, lo_open=True),
+    "episode_steps": Range(1, math.inf, integer=True),
+    "raw_edge_period": Range(0, math.inf, integer=True),
+    "eval_every_frames": Range(0, math.inf, integer=True),
+    "eval_steps": Range(1, math.inf, integer=True),
+    "eval_seeds": Range(1, math.inf, integer=True),
 }
-
-
-def _check_field(
-    name: str, value: Any, integer: bool, lo: float, lo_ok: bool, hi: float | None,
-    optional: bool,
-) -> None:
-    """``ValueError`` naming ``name`` and its allowed range unless ``value`` is in it."""
-    if value is None and optional:
-        return
-    kind = "an integer" if integer else "a finite number"
-    allowed = f"{kind} {'>=' if lo_ok else '>'} {lo:g}" if hi is None else (
-        f"{kind} in {'[' if lo_ok else '('}{lo:g}, {hi:g}]")
-    if optional:
-        allowed += " or none"
-    is_number = isinstance(value, (int, float)) and not isinstance(value, bool)
-    ok = is_number and (not integer or float(value).is_integer()) and math.isfinite(value)
-    ok = ok and (value >= lo if lo_ok else value > lo) and (hi is None or value <= hi)
-    if not ok:
-        raise ValueError(f"{name}: must be {allowed}, got {value!r}")
+_OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm")
 
 
 PRESETS: dict[str, TrainPreset] = {

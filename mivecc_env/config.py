@@ -44,8 +44,9 @@ class ConfigError(ValueError):
 
 
 @dataclass(frozen=True)
-class _Range:
-    """Allowed numeric range of a field (inclusive unless stated)."""
+class Range:
+    """Allowed numeric range of a field (inclusive unless stated; ``hi = inf``: no upper
+    bound)."""
 
     lo: float
     hi: float
@@ -54,9 +55,11 @@ class _Range:
     integer: bool = False
 
     def describe(self) -> str:
+        kind = "an integer" if self.integer else "a number"
+        if self.hi == math.inf:  # open-ended: no upper bound to state
+            return f"{kind} {'>' if self.lo_open else '>='} {self.lo}"
         left = "(" if self.lo_open else "["
         right = ")" if self.hi_open else "]"
-        kind = "an integer" if self.integer else "a number"
         return f"{kind} in {left}{self.lo}, {self.hi}{right}"
 
     def contains(self, value: float) -> bool:
@@ -70,11 +73,11 @@ class _Range:
 
 
 def _num(default: float, lo: float, hi: float, doc: str, **kw: Any) -> Any:
-    return field(default=default, metadata={"range": _Range(lo, hi, **kw), "doc": doc})
+    return field(default=default, metadata={"range": Range(lo, hi, **kw), "doc": doc})
 
 
 def _int(default: int, lo: int, hi: int, doc: str) -> Any:
-    return field(default=default, metadata={"range": _Range(lo, hi, integer=True), "doc": doc})
+    return field(default=default, metadata={"range": Range(lo, hi, integer=True), "doc": doc})
 
 
 def _choice(default: Any, choices: tuple[Any, ...], doc: str) -> Any:
@@ -210,7 +213,7 @@ class MiVeCCConfig:
     edge_sv_gate: float | None = field(
         default=None,
         metadata={
-            "range": _Range(-1000.0, 1000.0),
+            "range": Range(-1000.0, 1000.0),
             "optional": True,
             "doc": "fuse the edge action only when the vehicle's SV exceeds this (released "
             "code: -2); None fuses always (paper)",
@@ -280,7 +283,7 @@ class MiVeCCConfig:
     sv_no_front_distance_m: float | None = field(
         default=None,
         metadata={
-            "range": _Range(0.0, 1e6, lo_open=True),
+            "range": Range(0.0, 1e6, lo_open=True),
             "optional": True,
             "doc": "d_front used by SV_acc when nothing is ahead on the virtual lane [m] "
             "(released code: 100); None: SV_acc is 0 then",
@@ -508,16 +511,21 @@ def _check_field(f: dataclasses.Field, value: Any) -> None:
         if value not in meta["choices"] or type(value) is not type(meta["choices"][0]):
             raise ConfigError(f"{f.name}: must be one of {list(meta['choices'])}, got {value!r}")
         return
-    rng: _Range = meta["range"]
-    if value is None and meta.get("optional"):
+    check_range(f.name, value, meta["range"], optional=bool(meta.get("optional")))
+
+
+def check_range(name: str, value: Any, rng: Range, optional: bool = False) -> None:
+    """:class:`ConfigError` naming ``name`` and ``rng`` unless ``value`` is a finite number in
+    it (an integer where ``rng.integer``; ``None`` too where ``optional``). One check for the
+    config's fields and the training presets'."""
+    if value is None and optional:
         return
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{f.name}: must be {rng.describe()}, got {value!r}")
-    if rng.integer and not isinstance(value, int):
-        if not (isinstance(value, float) and value.is_integer()):
-            raise ConfigError(f"{f.name}: must be {rng.describe()}, got {value!r}")
-    if not math.isfinite(value) or not rng.contains(value):
-        raise ConfigError(f"{f.name}: must be {rng.describe()}, got {value!r}")
+    ok = not isinstance(value, bool) and isinstance(value, int | float)
+    if ok and rng.integer and not isinstance(value, int):
+        ok = isinstance(value, float) and value.is_integer()
+    if not (ok and math.isfinite(value) and rng.contains(value)):
+        allowed = rng.describe() + (" or None" if optional else "")
+        raise ConfigError(f"{name}: must be {allowed}, got {value!r}")
 
 
 FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MiVeCCConfig))
