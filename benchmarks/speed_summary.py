@@ -107,7 +107,9 @@ def markdown(records: list[dict[str, Any]]) -> str:
     for machine in dict.fromkeys(r["machine"] for r in records):
         group = [r for r in records if r["machine"] == machine]
         sessions = sorted({r["session"] for r in group})
-        lines += ["", f"{machine}: {len(group)} runs, sessions {sessions[0]}-{sessions[-1]}; "
+        span = (f"session {sessions[0]}" if len(sessions) == 1
+                else f"sessions {sessions[0]}-{sessions[-1]}")
+        lines += ["", f"{machine}: {len(group)} runs, {span}; "
                   "each ratio's range and median over the runs, and the runs that met its "
                   "floor:", "", "| engine | range | median | floor |", "|---|---:|---:|---|"]
         for engine, title in ENGINE_ROWS:

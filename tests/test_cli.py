@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +40,21 @@ def test_evaluate_json_has_required_keys(capsys: pytest.CaptureFixture[str]) -> 
     assert 0 < result["mean_speed_mps"] <= result["upper_bound_mps"] + 1.0
     assert 0 <= result["avg_travel_velocity_mps"] <= result["upper_bound_mps"] + 1e-9
     assert result["coordinator_actions"] == "unused"
+
+
+def test_rules_only_evaluation_does_not_import_torch() -> None:
+    """The README's first command (scheme E, no checkpoint) stays torch-free: torch's import
+    alone takes longer than the evaluation (a regression of 088b042, fixed)."""
+    code = (
+        "import sys\n"
+        "from mivecc_agents.cli import main\n"
+        "rc = main(['evaluate', '--scheme', 'E', '--rows', '1', '--cols', '1', '--density',"
+        " '900', '--steps', '20', '--seed', '0', '--json'])\n"
+        "print('torch imported:', 'torch' in sys.modules, 'rc:', rc)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=300).stdout
+    assert out.strip().endswith("torch imported: False rc: 0")
 
 
 def test_same_seed_is_deterministic(capsys: pytest.CaptureFixture[str]) -> None:

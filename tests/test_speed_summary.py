@@ -87,6 +87,14 @@ def test_summary_marks_misses_and_groups_by_cpu(tmp_path: Path) -> None:
     assert "batched env, EEC observations, B=1 |" not in text  # not measured: no row
 
 
+def test_a_cpu_seen_in_one_session_is_named_once(tmp_path: Path) -> None:
+    _write(tmp_path, 21, 1, _run_doc(5.5))
+    _write(tmp_path, 21, 2, _run_doc(4.5))
+    text = speed_summary.markdown(speed_summary.load_runs(tmp_path))
+    assert "Test CPU, AVX2: 2 runs, session 21;" in text
+    assert "sessions 21-21" not in text
+
+
 def test_cli_writes_the_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     _write(tmp_path, 1, 1, _run_doc(5.2))
     out = tmp_path / "out" / "s.md"
