@@ -106,7 +106,20 @@ def describe(info: dict[str, Any]) -> str:
             f"numpy {info['numpy']}{torch_part}, Python {info['python']}, commit {commit}")
 
 
-if __name__ == "__main__":
+def main(argv: list[str] | None = None) -> int:
+    """Print :func:`machine_info` (with torch and the policy digests) as JSON; no options."""
     import json
 
+    from mivecc_env import cli_args
+
+    cli_args.Parser(description=__doc__.splitlines()[0]).parse_args(argv)
     print(json.dumps(machine_info(with_torch=True), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+
+    from mivecc_env import cli_args
+
+    sys.exit(cli_args.run(main))
