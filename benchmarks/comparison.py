@@ -245,7 +245,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="fewer steps for a slow scheme, e.g. optimisation=1000")
     p.add_argument("--workers", type=cli_args.count(1), default=1,
                    help="processes (1: in this process)")
-    p.add_argument("--from-csv", nargs="+", type=Path, default=[],
+    p.add_argument("--from-csv", nargs="+", type=cli_args.existing_file, default=[],
                    help="reuse matching runs of earlier CSVs (the last CSV holding a run wins)")
     p.add_argument("--tabulate-only", action="store_true",
                    help="simulate nothing: tables and figures of the runs found in --from-csv")

@@ -361,7 +361,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
                         "learned cloud's training period; EEC+3 every step)")
     parser.add_argument("--workers", type=cli_args.count(1), default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
-    parser.add_argument("--from-csv", type=Path, nargs="+", default=None,
+    parser.add_argument("--from-csv", type=cli_args.existing_file, nargs="+", default=None,
                         help="build the tables from earlier runs' paper_table.csv files "
                         "(e.g. one run per scheme) instead of running episodes; a run of a "
                         "later file replaces one of an earlier file with the same grid, "

@@ -30,8 +30,8 @@ from typing import Any, NoReturn
 from mivecc_env.config import ConfigError, from_overrides
 
 __all__ = [
-    "InputError", "Parser", "check_distinct", "count", "density", "grid", "number", "run", "seed",
-    "whole_density", "writable_dir",
+    "InputError", "Parser", "check_distinct", "count", "density", "existing_file", "grid",
+    "number", "run", "seed", "whole_density", "writable_dir",
 ]
 
 
@@ -123,6 +123,14 @@ def grid(text: str) -> tuple[int, int]:
     _config_field("rows", rows)
     _config_field("cols", cols)
     return rows, cols
+
+
+def existing_file(text: str) -> Path:
+    """Argument type: the path of a file that exists (an input; checked before any work)."""
+    path = Path(text)
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"must be an existing file, got {text!r}")
+    return path
 
 
 def writable_dir(option: str, path: str | os.PathLike[str]) -> Path:

@@ -58,6 +58,10 @@ def _status(name: str, argv: list[str]) -> int:
      "argument --constants: must be a number in [-3, 3], got '5'"),
     ("table_diff", ["NOTES", "NOTES"], "a: NOTES is not a paper_table.csv"),
     ("machine_info", ["--bogus", "1"], "unrecognized arguments: --bogus 1"),
+    ("comparison", ["--tabulate-only", "--from-csv", "absent.csv"],
+     "argument --from-csv: must be an existing file, got 'absent.csv'"),
+    ("paper_table", ["--from-csv", "absent.csv"],
+     "argument --from-csv: must be an existing file, got 'absent.csv'"),
     ("machine_info", ["extra"], "unrecognized arguments: extra"),
 ])
 def test_bad_script_argument_is_one_line_exit_2(
