@@ -21,6 +21,8 @@ from typing import Any
 
 import numpy as np
 
+from mivecc_env import cli_args
+
 HERE = Path(__file__).resolve().parent
 
 #: CPU flags that select different numerical code paths in numpy and torch.
@@ -110,8 +112,6 @@ def main(argv: list[str] | None = None) -> int:
     """Print :func:`machine_info` (with torch and the policy digests) as JSON; no options."""
     import json
 
-    from mivecc_env import cli_args
-
     cli_args.Parser(description=__doc__.splitlines()[0]).parse_args(argv)
     print(json.dumps(machine_info(with_torch=True), indent=2))
     return 0
@@ -119,7 +119,5 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     import sys
-
-    from mivecc_env import cli_args
 
     sys.exit(cli_args.run(main))
