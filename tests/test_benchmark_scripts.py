@@ -18,6 +18,7 @@ import cloud_reward_check
 import comparison
 import critic_check
 import machine_info
+import near_miss_cost
 import paper_table
 import released_reference
 import released_study
@@ -37,6 +38,38 @@ def test_rules_study_writes_its_table(tmp_path: Path) -> None:
     assert all(r["arrived_total"] > 0 for r in rows)
     assert (tmp_path / "rules_study.md").read_text().count("| ") > 4
     assert all(r["released_velocity_mps"] > 0 and r["min_distance_m"] > 0 for r in rows)
+
+
+def test_near_miss_cost_times_the_hooks_as_the_step_calls_them(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The hooks alone are timed with the arguments ``Simulator.step`` gives them (the (B,)
+    per-environment clocks), and without the passing-time path the compiled step no longer
+    calls (session 21's audit: a scalar clock compiled another specialisation inside the
+    timed loop, and the numpy passing path was counted)."""
+    from mivecc_env.sim._numba import HAVE_NUMBA
+    from mivecc_env.sim.near_miss import NearMissStats
+    from mivecc_env.sim.passing import PassingTimes
+
+    clocks: list[object] = []
+    record_step = NearMissStats.record_step
+
+    def spy(self, view, v, s_new, out, t0, dt):  # type: ignore[no-untyped-def]
+        clocks.append(t0)
+        return record_step(self, view, v, s_new, out, t0, dt)
+
+    passing_calls = []
+    record = PassingTimes.record
+    monkeypatch.setattr(NearMissStats, "record_step", spy)
+    monkeypatch.setattr(PassingTimes, "record",
+                        lambda self, *a: passing_calls.append(a) or record(self, *a))
+    (row,) = near_miss_cost.main(["--batch", "3", "--density", "2100", "--warmup", "20",
+                                  "--rounds", "1", "--block", "2"])
+    assert row["batch"] == 3 and row["vehicles"] > 0 and row["hooks_ms"] > 0
+    assert all(isinstance(t0, np.ndarray) and t0.shape == (3,) for t0 in clocks)
+    assert len(clocks) >= 205  # 22 + 2 steps of the "with" simulator, 5 untimed + 200 timed
+    if HAVE_NUMBA:  # the compiled move records the passing times: no separate hook
+        assert passing_calls == []
 
 
 def test_paper_table_runs_and_merges(tmp_path: Path) -> None:
