@@ -757,11 +757,17 @@ def make_actor(
     """
     net = make_actor_net(kind, generator=generator, conv_activation=conv_activation,
                          device=device, variant=variant)
-    return TensorDictModule(
+    module = TensorDictModule(
         net,
         in_keys=_group_keys(group, ("observation", "mask")),
         out_keys=[(group, "action")],
     )
+    # TensorDictModule forwards unknown attributes to its network, so ``module.spec`` would be
+    # the network's NetworkSpec; TorchRL reads a policy's ``spec`` as the specs of its outputs
+    # (a Collector given this module raised AttributeError). None: the collector finds the
+    # outputs by calling the policy once. The network's spec stays ``module.module.spec``.
+    module.spec = None
+    return module
 
 
 def make_critic(

@@ -82,7 +82,8 @@ class MiVeCCTorchEnv(EnvBase):
             veto, no max; the released trainer uses ``n = 2``); ``0`` (default): never.
         config: a :class:`~mivecc_env.config.MiVeCCConfig`; ``**overrides`` replace fields
             (``scheme``, ``rows``, ``max_steps``...).
-        device: torch device of the tensors (CPU only is tested).
+        device: torch device of the tensors; the simulation stays on the CPU (tested on the
+            CPU and on CUDA: ``tests/agents/test_device.py``).
 
     Raises:
         ConfigError: a bad config value, batch size or density (from the batched env).
