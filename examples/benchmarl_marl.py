@@ -9,6 +9,7 @@ Install (no ``train`` extra: BenchMARL 1.5.x needs torchrl < 0.12, mivecc's env 
 Run:
     python examples/benchmarl_marl.py --algo mappo --iters 2
     python examples/benchmarl_marl.py --algo maddpg --task full --iters 2
+    python examples/benchmarl_marl.py --algo mappo --device cuda   # sampling and training on a GPU
 """
 
 from __future__ import annotations
@@ -26,9 +27,11 @@ from mivecc_env.benchmarl_task import MiVeCCTask
 ALGORITHMS = {"mappo": MappoConfig, "ippo": IppoConfig, "maddpg": MaddpgConfig}
 
 
-def small_experiment(iters: int, frames: int, folder: str) -> ExperimentConfig:
-    """BenchMARL's default experiment config cut down to a few short CPU iterations."""
+def small_experiment(iters: int, frames: int, folder: str, device: str = "cpu") -> ExperimentConfig:
+    """BenchMARL's default experiment config cut down to a few short iterations; the env's
+    tensors, the networks and the replay buffer on ``device`` (the simulation stays on the CPU)."""
     cfg = ExperimentConfig.get_from_yaml()
+    cfg.sampling_device = cfg.train_device = cfg.buffer_device = device
     cfg.max_n_iters = iters
     cfg.max_n_frames = None
     cfg.on_policy_collected_frames_per_batch = frames
@@ -56,6 +59,8 @@ def main(argv: list[str] | None = None) -> Experiment:
     parser.add_argument("--iters", type=int, default=2)
     parser.add_argument("--frames", type=int, default=100, help="env steps per iteration")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of sampling, training and the buffer (e.g. cuda)")
     args = parser.parse_args(argv)
     task = MiVeCCTask[args.task.upper()].get_from_yaml()
     task.config.update(rows=1, cols=2, max_steps=args.frames)
@@ -66,7 +71,7 @@ def main(argv: list[str] | None = None) -> Experiment:
             model_config=MlpConfig.get_from_yaml(),
             critic_model_config=MlpConfig.get_from_yaml(),
             seed=args.seed,
-            config=small_experiment(args.iters, args.frames, folder),
+            config=small_experiment(args.iters, args.frames, folder, args.device),
         )
         start = time.perf_counter()
         experiment.run()

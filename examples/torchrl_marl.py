@@ -11,6 +11,7 @@ Install: ``pip install -c constraints.txt ".[train]"`` (torch, torchrl >= 0.14, 
 Run:
     python examples/torchrl_marl.py --algo mappo --iters 2
     python examples/torchrl_marl.py --algo maddpg --iters 2
+    python examples/torchrl_marl.py --algo mappo --device cuda   # networks and tensors on a GPU
 """
 
 from __future__ import annotations
@@ -39,11 +40,13 @@ from mivecc_env import mivecc_edges_v0
 GROUP = "edge"
 
 
-def make_env(seed: int, max_steps: int) -> TransformedEnv:
-    """The edge-only view (2 x 2 grid) wrapped for TorchRL, observations flattened."""
+def make_env(seed: int, max_steps: int, device: str = "cpu") -> TransformedEnv:
+    """The edge-only view (2 x 2 grid) wrapped for TorchRL, observations flattened; the
+    simulation runs on the CPU, its tensors are on ``device``."""
     base = PettingZooWrapper(
         mivecc_edges_v0.parallel_env(rows=2, cols=2, density=1500, max_steps=max_steps),
         seed=seed,
+        device=device,
     )
     return TransformedEnv(
         base,
@@ -63,6 +66,7 @@ def mlp(env: TransformedEnv, n_out: int, centralised: bool, n_in: int | None = N
         depth=2,
         num_cells=64,
         activation_class=nn.Tanh,
+        device=env.device,
     )
 
 
@@ -91,7 +95,7 @@ def mappo(env: TransformedEnv, args: argparse.Namespace) -> list[float]:
     collector = Collector(env, policy, frames_per_batch=args.frames,
                           total_frames=args.frames * args.iters,
                           auto_register_policy_transforms=False)
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(args.frames),
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(args.frames, device=env.device),
                                     sampler=SamplerWithoutReplacement(), batch_size=args.batch)
     returns = []
     for data in collector:
@@ -145,8 +149,8 @@ def maddpg(env: TransformedEnv, args: argparse.Namespace) -> list[float]:
     collector = Collector(env, explore, frames_per_batch=args.frames,
                           total_frames=args.frames * args.iters,
                           auto_register_policy_transforms=False)
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(10 * args.frames),
-                                    batch_size=args.batch)
+    buffer = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(10 * args.frames, device=env.device), batch_size=args.batch)
     returns = []
     for data in collector:
         buffer.extend(data.reshape(-1))
@@ -172,9 +176,11 @@ def main(argv: list[str] | None = None) -> list[float]:
     parser.add_argument("--batch", type=int, default=32)
     parser.add_argument("--epochs", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of the networks and tensors (e.g. cuda)")
     args = parser.parse_args(argv)
     torch.manual_seed(args.seed)
-    env = make_env(args.seed, max_steps=args.frames * 2)
+    env = make_env(args.seed, max_steps=args.frames * 2, device=args.device)
     start = time.perf_counter()
     returns = (mappo if args.algo == "mappo" else maddpg)(env, args)
     print(f"{args.algo}: {args.iters} iterations x {args.frames} steps in "

@@ -69,3 +69,32 @@ def test_benchmarl_example(algo: str, task: str) -> None:
     mod = load("benchmarl_marl", "benchmarl")
     experiment = mod.main(["--algo", algo, "--task", task, "--iters", "2", "--frames", "50"])
     assert experiment.n_iters_performed == 2
+
+
+def _needs_cuda() -> None:
+    torch = pytest.importorskip("torch")
+    if not torch.cuda.is_available():
+        pytest.skip("torch sees no CUDA device")
+
+
+@pytest.mark.torchrl
+@pytest.mark.parametrize("algo", ["mappo", "maddpg"])
+def test_torchrl_example_on_cuda(algo: str) -> None:
+    _needs_cuda()
+    mod = load("torchrl_marl", "torchrl")
+    env = mod.make_env(0, max_steps=8, device="cuda")
+    assert env.rollout(3)["edge", "observation"].device.type == "cuda"
+    returns = mod.main(["--algo", algo, "--iters", "2", "--frames", "32", "--batch", "16",
+                        "--device", "cuda"])
+    assert len(returns) == 2
+
+
+@pytest.mark.benchmarl
+@pytest.mark.parametrize(("algo", "task"), [("mappo", "edges"), ("maddpg", "full")])
+def test_benchmarl_example_on_cuda(algo: str, task: str) -> None:
+    _needs_cuda()
+    mod = load("benchmarl_marl", "benchmarl")
+    experiment = mod.main(["--algo", algo, "--task", task, "--iters", "2", "--frames", "50",
+                           "--device", "cuda"])
+    assert experiment.n_iters_performed == 2
+    assert {p.device.type for p in experiment.policy.parameters()} == {"cuda"}
