@@ -211,6 +211,8 @@ def evaluation_policies(
     ``overrides`` (the evaluation's config overrides) as well, a learned cloud's training
     ``cloud_period`` is adopted first (:func:`adopt_cloud_period`).
     """
+    if not _loads_policies(args):  # nothing to load: torch is not imported
+        return {}
     from mivecc_agents.checkpoints import CheckpointError
     from mivecc_agents.policies import (
         check_policy_config,
@@ -249,6 +251,22 @@ def evaluation_policies(
             for message in messages:
                 print(f"{PROG}: warning: {options[kind]}: {message}", file=sys.stderr)
     return policies
+
+
+def _loads_policies(args: argparse.Namespace) -> bool:
+    """Whether ``evaluate`` loads a policy: a checkpoint is given, or the shipped ones are used
+    (the scheme decides which of them)."""
+    given = (args.edge_checkpoint, args.cloud_checkpoint)
+    return not args.no_pretrained or any(path is not None for path in given)
+
+
+def _check_checkpoint_files(args: argparse.Namespace) -> None:
+    """A given checkpoint path that is no file is an error before anything is imported
+    (loading it would import torch first, several seconds)."""
+    for kind in ("edge", "cloud"):
+        path = getattr(args, f"{kind}_checkpoint")
+        if path is not None and not Path(path).is_file():
+            raise ConfigError(f"--{kind}-checkpoint: {path}: no such checkpoint file")
 
 
 def _check_threads(option: str, threads: Any) -> int:
@@ -324,10 +342,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     seeds = args.seeds if args.seeds else [args.seed]
     cli_args.check_distinct("--seeds", seeds)
     threads = _check_threads("--threads", args.threads)
+    _check_checkpoint_files(args)
     policies = {}
     if args.scheme in ("EE", "EEC"):
         config = _evaluation_config(args, overrides)
-        set_inference_threads(threads)
+        if _loads_policies(args):
+            set_inference_threads(threads)
         policies = evaluation_policies(args, config, overrides)
     else:
         _check_unused_checkpoints(args)
