@@ -112,20 +112,23 @@ def collect(stage: str, path: str, frames: int, steps_per_env: int, envs_per_den
     return {"frames": n, "seconds": dt, "frames_per_s": n / dt, "n_envs": n_envs}
 
 
-def learn(stage: str, path: str, data: list, seconds: float, threads: int | None = None
-          ) -> dict[str, float]:
+def learn(stage: str, path: str, data: list, seconds: float, threads: int | None = None,
+          device: str = "cpu") -> dict[str, float]:
     """Updates/s and samples/s of ``DDPGLearner.update`` on collected data (``seconds`` long),
-    at ``threads`` (default: the path's setting)."""
+    at ``threads`` (default: the path's setting), networks and replay buffer on ``device``
+    (each update ends with the losses read back, so a GPU's queue is drained in the time)."""
     from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 
     group = training.STAGES[stage]["group"]
     _, _, _, actor, critic, p = _setup(stage, path, 1)
+    actor.to(device)
+    critic.to(device)
     if threads is None:
         threads = 1 if path == "old" else _threads(stage)
     torch.set_num_threads(threads)
     keys = training._buffer_keys(group)
     flat = torch.cat([d.select(*keys).reshape(-1) for d in data])
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(flat.numel()),
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(flat.numel(), device=device),
                                     batch_size=p.batch_size)
     buffer.extend(flat)
     learner = DDPGLearner(actor, critic, group, p)
@@ -136,7 +139,7 @@ def learn(stage: str, path: str, data: list, seconds: float, threads: int | None
         n += stats.n_updates
         t += stats.seconds
     return {"updates_per_s": n / t, "samples_per_s": n * p.batch_size / t,
-            "batch_size": p.batch_size, "threads": torch.get_num_threads()}
+            "batch_size": p.batch_size, "threads": torch.get_num_threads(), "device": device}
 
 
 def end_to_end(path: str, frames: int, envs_per_density: int, steps_per_env: int

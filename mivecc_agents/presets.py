@@ -350,6 +350,10 @@ def add_train_arguments(parser: Any) -> None:
     parser.add_argument("--envs-per-density", type=int, default=None,
                         help="native backend: environments per density (default: the "
                         "preset's 48 environments split across the densities)")
+    parser.add_argument("--device", default="cpu",
+                        help="torch device of the learner (networks, optimiser, replay "
+                        "buffer), e.g. cuda; collection and checkpoints stay on the CPU "
+                        "(default cpu)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+",
                         action="extend", default=[], help="other env config fields")

@@ -511,6 +511,60 @@ def env_groups(env: Any) -> list[str]:
     return [g for g in GROUPS if g in acts]
 
 
+def learner_device(device: str | torch.device, name: str = "device") -> torch.device:
+    """``device`` as a torch device that training can use: the CPU or a CUDA device torch sees.
+
+    Raises:
+        TrainingError: naming ``name``, for anything else.
+    """
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        dev = None
+    if dev is None or dev.type not in ("cpu", "cuda"):
+        raise TrainingError(f"{name}: must be cpu, cuda or cuda:N, got {device!r}")
+    if dev.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if count == 0:
+            raise TrainingError(f"{name}: {device!r}: torch sees no CUDA device here")
+        if dev.index is not None and dev.index >= count:
+            raise TrainingError(f"{name}: {device!r}: torch sees {count} CUDA device(s)")
+    return dev
+
+
+def _learner_networks(
+    actor: TensorDictModule, critic: TensorDictModule, device: torch.device
+) -> tuple[TensorDictModule, TensorDictModule, Callable[[], None]]:
+    """The learner's actor and critic on ``device`` and a function copying the learner's
+    actor weights into ``actor`` (which acts in the envs on the CPU). On the CPU both are
+    ``actor`` and ``critic`` themselves and the copy does nothing."""
+    if device.type == "cpu":
+        return actor, critic, lambda: None
+    import copy
+
+    learn_actor = copy.deepcopy(actor).to(device)
+
+    def sync() -> None:
+        with torch.no_grad():
+            for dst, src in zip(actor.parameters(), learn_actor.parameters(), strict=True):
+                dst.copy_(src)
+            for dst, src in zip(actor.buffers(), learn_actor.buffers(), strict=True):
+                dst.copy_(src)
+
+    return learn_actor, critic.to(device), sync
+
+
+def _on_cpu(state: Any) -> Any:
+    """A (nested) state dict with every tensor on the CPU (CPU tensors are not copied)."""
+    if isinstance(state, torch.Tensor):
+        return state.cpu()
+    if isinstance(state, dict):
+        return {k: _on_cpu(v) for k, v in state.items()}
+    if isinstance(state, list | tuple):
+        return type(state)(_on_cpu(v) for v in state)
+    return state
+
+
 def _load_start(resume: str | Path, stage: str, group: str) -> dict[str, Any]:
     """Load the checkpoint to resume from; a policy-only export gives a warm start."""
     import sys
@@ -548,6 +602,7 @@ def _train(
     save_every: int = 50,
     backend: str = "native",
     envs_per_density: int | None = None,
+    device: str | torch.device = "cpu",
 ) -> Path:
     """Train one stage and return the path of the final checkpoint.
 
@@ -576,6 +631,11 @@ def _train(
             PettingZooWrapper + SerialEnv path, one env per density).
         envs_per_density: Native backend: environments per density (default: the preset's
             ``envs_per_density``, else its ``envs`` split across the densities).
+        device: Torch device of the learner: the trained actor and critic, their targets and
+            optimiser, and the replay buffer. Collection (envs and the policy acting in them),
+            the periodic evaluation and the saved checkpoints stay on the CPU: the collection
+            actor is a CPU copy of the learner's, updated after each iteration's updates.
+            ``"cpu"`` (default) is one actor for both, as before.
 
     Returns:
         Path of the checkpoint written at the end.
@@ -585,6 +645,7 @@ def _train(
 
     if stage not in STAGES:
         raise TrainingError(f"unknown stage {stage!r}; expected 'edge' or 'cloud'")
+    device = learner_device(device)
     p = get_preset(preset).for_stage(stage)
     if buffer_size is not None:
         p = p.replace(buffer_size=int(buffer_size))
@@ -646,11 +707,15 @@ def _train(
         frozen_edge = load_frozen_edge_actor(edge_checkpoint)
 
     state = {"frames": 0, "updates": 0, "iteration": 0}
+    # the learner's networks on ``device``; ``actor`` keeps acting in the envs on the CPU
+    learn_actor, learn_critic, sync_actor = _learner_networks(actor, critic, device)
     learner = DDPGLearner(
-        actor, critic, group, p, progress=lambda: state["frames"] / max(total_frames, 1)
+        learn_actor, learn_critic, group, p,
+        progress=lambda: state["frames"] / max(total_frames, 1),
     )
     if start is not None and not warm:
         learner.load_state_dict(start)
+        sync_actor()
         state.update(
             frames=int(start["frames"]),
             updates=int(start["updates"]),
@@ -691,7 +756,8 @@ def _train(
     )
     cap_mem = int(p.buffer_memory_mb * 2**20 // max(per_transition, 1))
     capacity = max(p.batch_size, min(p.buffer_size, cap_mem))
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity), batch_size=p.batch_size)
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device),
+                                    batch_size=p.batch_size)
 
     csv_path = out_dir / "train_log.csv"
     fields = [
@@ -738,6 +804,7 @@ def _train(
             "buffer_capacity": capacity,
             "bytes_per_transition": per_transition,
             "warm_start_from": str(resume) if warm else None,
+            "learner_device": str(device),
         },
     }
 
@@ -747,8 +814,8 @@ def _train(
             {
                 **meta,
                 "actor": actor.module.state_dict(),
-                "critic": critic.module.state_dict(),
-                **learner.state_dict(),
+                "critic": _on_cpu(learn_critic.module.state_dict()),
+                **_on_cpu(learner.state_dict()),
                 "frames": state["frames"],
                 "updates": state["updates"],
                 "metrics": {**metrics, "iteration": state["iteration"]},
@@ -817,6 +884,7 @@ def _train(
                         n_upd = max(1, round(p.updates_per_frame * n))
                         stats = learner.update(buffer, n_upd, lambda: stop.requested)
                         state["updates"] += stats.n_updates
+                        sync_actor()
                     if workers > 1 or ray_address is not None:
                         collector.update_policy_weights_()
                     metrics = _metrics(
@@ -1083,6 +1151,7 @@ def train_from_args(args) -> int:
         print(f"mivecc train: error: {exc}", file=sys.stderr)
         return 2
     try:
+        device = learner_device(args.device, "--device")
         path = train(
             args.stage, preset, args.frames,
             rows=args.rows or default, cols=args.cols or default, densities=args.density,
@@ -1090,7 +1159,7 @@ def train_from_args(args) -> int:
             ray_address=args.ray_address, progress=not args.no_progress,
             edge_checkpoint=args.edge_checkpoint, config_overrides=parse_set_items(args.set_items),
             episode_steps=args.episode_steps, buffer_size=args.buffer_size,
-            backend=args.backend, envs_per_density=args.envs_per_density,
+            backend=args.backend, envs_per_density=args.envs_per_density, device=device,
         )
     except (TrainingError, CheckpointError) as exc:
         print(f"mivecc train: error: {exc}", file=sys.stderr)

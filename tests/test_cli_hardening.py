@@ -35,6 +35,8 @@ def _train_error(capsys: pytest.CaptureFixture[str], *argv: str) -> str:
         (["--buffer-size", "0"], "--buffer-size: must be an integer >= 192"),  # minibatch
         (["--workers", "0"], "--workers: must be an integer >= 1, got 0"),
         (["--threads", "0"], "--threads: must be an integer >= 1, got 0"),
+        (["--device", "gpu"], "--device: must be cpu, cuda or cuda:N, got 'gpu'"),
+        (["--device", "cuda:7"], "--device: 'cuda:7': torch sees"),  # none, or fewer
         (["--episode-steps", "0"], "--episode-steps: must be an integer >= 1"),
         (["--density", "0"], "--density: must be a number in [1.0, 3600.0], got 0.0"),
         (["--density", "nan"], "--density: must be finite"),

@@ -32,3 +32,24 @@ def test_train_speed_smoke(tmp_path: Path) -> None:
     assert all(r["old"] > 0 and r["new"] > 0 for r in out["rows"])
     text = (tmp_path / "train_speed.md").read_text()
     assert "python benchmarks/train_speed.py" in text and "| edge | collect frames/s |" in text
+
+
+def test_learner_devices_smoke(tmp_path: Path) -> None:
+    """benchmarks/learner_devices.py on the CPU: every (device, threads) row, real updates."""
+    import learner_devices
+    import torch
+
+    threads = torch.get_num_threads()
+    try:
+        out = learner_devices.main([
+            "--stages", "edge", "--devices", "cpu", "--threads", "1", "2", "--repeats", "1",
+            "--collect-frames", "20", "20", "--envs-per-density", "1", "1",
+            "--learn-seconds", "0.1", "--out", str(tmp_path),
+        ])
+    finally:
+        torch.set_num_threads(threads)
+    assert [(r["device"], r["threads"]) for r in out["rows"]] == [("cpu", 1), ("cpu", 2)]
+    assert all(r["samples_per_s"] > 0 for r in out["rows"])
+    assert out["rows"][0]["ratio"] == 1.0
+    text = (tmp_path / "learner_devices.md").read_text()
+    assert "python benchmarks/learner_devices.py" in text and "| edge | cpu | 2 |" in text

@@ -131,3 +131,51 @@ def test_collect_update_and_checkpoint_on_device(device: str, group: str, tmp_pa
     got = policy(obs.cpu().numpy(), mask.cpu().numpy())
     torch.testing.assert_close(torch.from_numpy(got), torch.from_numpy(want),
                                rtol=1e-5, atol=1e-5)
+
+
+def _tensors(obj):
+    if isinstance(obj, torch.Tensor):
+        yield obj
+    elif isinstance(obj, dict):
+        for value in obj.values():
+            yield from _tensors(value)
+    elif isinstance(obj, list | tuple):
+        for value in obj:
+            yield from _tensors(value)
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("stage", ["edge", "cloud"])
+def test_training_with_the_learner_on_device(device: str, stage: str, tmp_path) -> None:
+    """``train(device=...)``: updates run there, the acting (CPU) actor follows the learner's,
+    the checkpoint holds CPU tensors only, and a resumed run continues on the device."""
+    from mivecc_agents.checkpoints import load_checkpoint
+    from mivecc_agents.training import train
+    from tests.agents.tiny import TINY
+
+    size = 1 if stage == "edge" else 2  # stage II over the shipped edge
+    kw = {"rows": size, "cols": size, "densities": 1500, "seed": 0, "progress": False,
+          "device": device}
+    first = train(stage, TINY, frames=200, out_dir=tmp_path / "a", **kw)
+    raw = torch.load(first, weights_only=True)  # no map_location: loads where it was saved
+    assert {t.device.type for t in _tensors(raw)} == {"cpu"}
+    ckpt = load_checkpoint(first)
+    assert ckpt["updates"] > 0
+    assert ckpt["extra"]["learner_device"] == device
+    for name, value in ckpt["actor"].items():  # the acting actor is the learner's
+        assert torch.equal(value, ckpt["loss"][f"actor_network_params.module.{name}"]), name
+    second = train(stage, TINY, frames=400, resume=first, out_dir=tmp_path / "b", **kw)
+    resumed = load_checkpoint(second)
+    assert resumed["frames"] == 400
+    assert resumed["updates"] > ckpt["updates"]
+
+
+def test_training_device_must_be_usable() -> None:
+    from mivecc_agents.training import TrainingError, learner_device
+
+    with pytest.raises(TrainingError, match="device: must be cpu, cuda or cuda:N, got 'gpu'"):
+        learner_device("gpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(TrainingError, match="torch sees no CUDA device here"):
+            learner_device("cuda")
+    assert learner_device("cpu") == torch.device("cpu")
