@@ -14,7 +14,6 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import csv
 import importlib.util
 import sys
 import warnings
@@ -101,13 +100,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         argv if argv is not None else sys.argv[1:])
     text = (f"Command: `{command.strip()}` ({args.repeats} repeats, medians; GPU: {gpu})\n\n"
             + "\n".join(lines))
-    (args.out / "learner_devices.md").write_text(text + "\n")
-    with open(args.out / "learner_devices.csv", "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    print(text)
-    return {"rows": rows, "text": text}
+    return train_speed.write_results(args.out, "learner_devices", text, rows)
 
 
 if __name__ == "__main__":

@@ -253,8 +253,14 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     command = "python benchmarks/train_speed.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
     text = f"Command: `{command.strip()}` ({args.repeats} repeats, medians)\n\n" + "\n".join(lines)
-    (args.out / "train_speed.md").write_text(text + "\n")
-    with open(args.out / "train_speed.csv", "w", newline="") as fh:
+    return write_results(args.out, "train_speed", text, rows)
+
+
+def write_results(out: Path, name: str, text: str, rows: list[dict]) -> dict[str, Any]:
+    """Write ``<name>.md`` (``text``) and ``<name>.csv`` (``rows``) to ``out``, print ``text``;
+    returns both."""
+    (out / f"{name}.md").write_text(text + "\n")
+    with open(out / f"{name}.csv", "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]) if rows else ["stage"])
         writer.writeheader()
         writer.writerows(rows)
