@@ -533,12 +533,14 @@ def learner_device(device: str | torch.device, name: str = "device") -> torch.de
 
 
 def _learner_networks(
-    actor: TensorDictModule, critic: TensorDictModule, device: torch.device
+    actor: TensorDictModule, critic: TensorDictModule, device: torch.device,
+    separate: bool | None = None,
 ) -> tuple[TensorDictModule, TensorDictModule, Callable[[], None]]:
     """The learner's actor and critic on ``device`` and a function copying the learner's
     actor weights into ``actor`` (which acts in the envs on the CPU). On the CPU both are
-    ``actor`` and ``critic`` themselves and the copy does nothing."""
-    if device.type == "cpu":
+    ``actor`` and ``critic`` themselves and the copy does nothing (``separate``: force the
+    separate learner actor of another device, for tests)."""
+    if not (device.type != "cpu" if separate is None else separate):
         return actor, critic, lambda: None
     import copy
 

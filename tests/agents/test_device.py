@@ -179,3 +179,24 @@ def test_training_device_must_be_usable() -> None:
         with pytest.raises(TrainingError, match="torch sees no CUDA device here"):
             learner_device("cuda")
     assert learner_device("cpu") == torch.device("cpu")
+
+
+def test_separate_learner_actor_is_copied_back() -> None:
+    """The learner's own actor (another device) starts equal to the acting one, is
+    independent of it, and ``sync`` copies its weights back (checked on the CPU in CI)."""
+    from mivecc_agents.training import _learner_networks
+
+    actor, critic = make_actor("edge", "edge"), make_critic("edge", "edge")
+    learn_actor, learn_critic, sync = _learner_networks(actor, critic, torch.device("cpu"),
+                                                        separate=True)
+    assert learn_actor is not actor and learn_critic is critic
+    pairs = list(zip(actor.parameters(), learn_actor.parameters(), strict=True))
+    assert all(torch.equal(a, b) and a.data_ptr() != b.data_ptr() for a, b in pairs)
+    with torch.no_grad():
+        for p in learn_actor.parameters():
+            p.add_(1.0)
+    assert not any(torch.equal(a, b) for a, b in pairs)
+    sync()
+    assert all(torch.equal(a, b) for a, b in pairs)
+    same = _learner_networks(actor, critic, torch.device("cpu"))
+    assert same[0] is actor and same[1] is critic
