@@ -181,12 +181,16 @@ def test_training_device_must_be_usable() -> None:
     assert learner_device("cpu") == torch.device("cpu")
 
 
-def test_separate_learner_actor_is_copied_back() -> None:
+@pytest.mark.parametrize("variant", ["paper", "released", "per_pick"])
+@pytest.mark.parametrize("kind", ["edge", "cloud"])
+def test_separate_learner_actor_is_copied_back(kind: str, variant: str) -> None:
     """The learner's own actor (another device) starts equal to the acting one, is
-    independent of it, and ``sync`` copies its weights back (checked on the CPU in CI)."""
+    independent of it, and ``sync`` copies its weights back (checked on the CPU in CI), for
+    every network variant."""
     from mivecc_agents.training import _learner_networks
 
-    actor, critic = make_actor("edge", "edge"), make_critic("edge", "edge")
+    actor = make_actor(kind, kind, variant=variant)
+    critic = make_critic(kind, kind, variant=variant)
     learn_actor, learn_critic, sync = _learner_networks(actor, critic, torch.device("cpu"),
                                                         separate=True)
     assert learn_actor is not actor and learn_critic is critic
