@@ -33,15 +33,13 @@ _spec.loader.exec_module(train_speed)  # the benchmarks folder is not a package
 
 
 def _device(text: str) -> str:
-    """Argument type: ``cpu`` or a CUDA device torch sees."""
+    """Argument type: a device ``mivecc train --device`` accepts (``training.learner_device``)."""
+    from mivecc_agents.training import TrainingError, learner_device
+
     try:
-        dev = torch.device(text)
-    except RuntimeError:
-        dev = None
-    if dev is None or dev.type not in ("cpu", "cuda"):
-        raise argparse.ArgumentTypeError(f"must be cpu or cuda[:N], got {text!r}")
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise argparse.ArgumentTypeError(f"{text!r}: torch sees no CUDA device here")
+        learner_device(text, "value")
+    except TrainingError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("value: ")) from None
     return text
 
 

@@ -55,7 +55,7 @@ def _status(name: str, argv: list[str]) -> int:
     ("heatmaps", ["--cell", "0"], "argument --cell: must be a finite number > 0, got '0'"),
     ("train_speed", ["--repeats", "0"], "argument --repeats: must be an integer >= 1"),
     ("learner_devices", ["--devices", "gpu"],
-     "argument --devices: must be cpu or cuda[:N], got 'gpu'"),
+     "argument --devices: must be cpu, cuda or cuda:N, got 'gpu'"),
     ("critic_check", ["--kind", "edge", "--constants", "5"],
      "argument --constants: must be a number in [-3, 3], got '5'"),
     ("table_diff", ["NOTES", "NOTES"], "a: NOTES is not a paper_table.csv"),
