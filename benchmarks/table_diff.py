@@ -13,10 +13,11 @@ runs both CSVs hold (same grid, scheme, density and seed) this prints and writes
 * the strict collision events of E, EE and EEC (those in both) per density (summed over
   seeds) in either run.
 
-Usage (seconds):
+Usage (seconds; the committed session-21 rerun on an Intel Xeon against the published table):
     python benchmarks/table_diff.py docs/results/paper_table/paper_table.csv \\
-        docs/results/reproducibility/paper_table_amd_epyc.csv --names "Intel Xeon" "AMD EPYC" \\
-        --out docs/results/reproducibility/paper_table_diff.md
+        docs/results/reproducibility/paper_table_session21.csv \\
+        --names "committed (AMD EPYC)" "session 21 (Intel Xeon)" \\
+        --out docs/results/reproducibility/paper_table_diff_session21.md
 """
 
 from __future__ import annotations

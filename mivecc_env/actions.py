@@ -1,6 +1,6 @@
 """Validation of coordinator actions: the one rule used by every environment front end.
 
-Rule (documented in the README and ``docs/environment.md``):
+Rule (documented in the README, "The environment in five lines", and ``docs/batched.md``):
 
 * An action is anything ``numpy`` converts to a float array of the expected shape. A torch
   tensor (detected by duck typing, so this module does not need torch) is accepted whatever
