@@ -58,7 +58,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -119,6 +119,16 @@ def _row(
     }  # fmt: skip
 
 
+class Engine(NamedTuple):
+    """A warmed-up mivecc engine: ``step()`` advances it one step, ``sim`` counts its
+    vehicle-steps (``Simulator.vehicle_steps``) and holds its entry queues."""
+
+    name: str
+    batch: int
+    step: Callable[[], Any]
+    sim: Simulator
+
+
 def _timed(step: Callable[[], Any], sim: Simulator, steps: int) -> tuple[float, int]:
     """Wall seconds of ``steps`` calls of ``step`` and the vehicle-steps moved meanwhile."""
     before = int(sim.vehicle_steps.sum())
@@ -129,27 +139,24 @@ def _timed(step: Callable[[], Any], sim: Simulator, steps: int) -> tuple[float, 
     return elapsed, int(sim.vehicle_steps.sum()) - before
 
 
-def measure_env(
-    rows: int, cols: int, density: float, steps: int, warmup: int, seed: int,
-    scheme: str = "EEC",
-) -> dict[str, Any]:
+def env_engine(
+    rows: int, cols: int, density: float, warmup: int, seed: int, scheme: str = "EEC",
+    max_steps: int = 10_000_000,
+) -> Engine:
     """(a) Full ``ParallelEnv.step`` (B = 1, zero actions, every observation of ``scheme``)."""
     env = mivecc_v0.parallel_env(
-        rows=rows, cols=cols, density=density, scheme=scheme, max_steps=warmup + steps + 1
+        rows=rows, cols=cols, density=density, scheme=scheme, max_steps=max_steps
     )
     env.reset(seed=seed)
     actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
     for _ in range(warmup):
         env.step(actions)
-    elapsed, moved = _timed(functools.partial(env.step, actions), env.sim, steps)
-    queue = float(env.sim.queued.mean())
-    env.close()
-    return _row(rows, cols, density, f"env {scheme}", 1, steps, warmup, elapsed, moved, queue)
+    return Engine(f"env {scheme}", 1, functools.partial(env.step, actions), env.sim)
 
 
-def measure_batched(
-    rows: int, cols: int, density: float, batch: int, steps: int, warmup: int, seed: int
-) -> dict[str, Any]:
+def batched_engine(
+    rows: int, cols: int, density: float, batch: int, warmup: int, seed: int
+) -> Engine:
     """(b) ``BatchedMiVeCCEnv.step`` of ``batch`` environments, scheme EEC, zero actions."""
     from mivecc_env.batched import BatchedMiVeCCEnv
 
@@ -163,22 +170,51 @@ def measure_batched(
     step = functools.partial(env.step, edge, cloud)
     for _ in range(20):
         step()
-    elapsed, moved = _timed(step, env.sim, steps)
-    return _row(rows, cols, density, f"batched B={batch}", batch, steps, warmup, elapsed, moved,
-                float(env.sim.queued.mean()))
+    return Engine(f"batched B={batch}", batch, step, env.sim)
+
+
+def core_engine(
+    rows: int, cols: int, density: float, batch: int, warmup: int, seed: int
+) -> Engine:
+    """(c) Bare batched ``Simulator.step()`` of ``batch`` environments (scheme E)."""
+    cfg = MiVeCCConfig(rows=rows, cols=cols, density_vplh=float(density), scheme="E")
+    sim = Simulator(cfg, batch_size=batch, seed=seed)
+    for _ in range(warmup):
+        sim.step()
+    return Engine(f"core B={batch}", batch, sim.step, sim)
+
+
+def _measure(engine: Engine, rows: int, cols: int, density: float, steps: int,
+             warmup: int) -> dict[str, Any]:
+    elapsed, moved = _timed(engine.step, engine.sim, steps)
+    return _row(rows, cols, density, engine.name, engine.batch, steps, warmup, elapsed, moved,
+                float(engine.sim.queued.mean()))
+
+
+def measure_env(
+    rows: int, cols: int, density: float, steps: int, warmup: int, seed: int,
+    scheme: str = "EEC",
+) -> dict[str, Any]:
+    """(a) Full ``ParallelEnv.step`` (B = 1, zero actions, every observation of ``scheme``),
+    one episode of ``warmup + steps + 1`` steps."""
+    engine = env_engine(rows, cols, density, warmup, seed, scheme, max_steps=warmup + steps + 1)
+    return _measure(engine, rows, cols, density, steps, warmup)
+
+
+def measure_batched(
+    rows: int, cols: int, density: float, batch: int, steps: int, warmup: int, seed: int
+) -> dict[str, Any]:
+    """(b) ``BatchedMiVeCCEnv.step`` of ``batch`` environments, scheme EEC, zero actions."""
+    engine = batched_engine(rows, cols, density, batch, warmup, seed)
+    return _measure(engine, rows, cols, density, steps, warmup)
 
 
 def measure_core(
     rows: int, cols: int, density: float, batch: int, steps: int, warmup: int, seed: int
 ) -> dict[str, Any]:
     """(c) Bare batched ``Simulator.step()`` of ``batch`` environments (scheme E)."""
-    cfg = MiVeCCConfig(rows=rows, cols=cols, density_vplh=float(density), scheme="E")
-    sim = Simulator(cfg, batch_size=batch, seed=seed)
-    for _ in range(warmup):
-        sim.step()
-    elapsed, moved = _timed(sim.step, sim, steps)
-    return _row(rows, cols, density, f"core B={batch}", batch, steps, warmup, elapsed, moved,
-                float(sim.queued.mean()))
+    engine = core_engine(rows, cols, density, batch, warmup, seed)
+    return _measure(engine, rows, cols, density, steps, warmup)
 
 
 def measure_sumo(

@@ -7,6 +7,11 @@ wrote) and prints, per run, SUMO-unregulated's fastest round and the three floor
 per CPU, the range and median of each ratio and how many runs met each floor. The runs differ in
 nothing but the host's load: read the spread as the measurement's uncertainty.
 
+Then the same for every committed ``benchmarks/speed_paired.py`` run
+(``session<N>/speed_paired_run<R>.json``): per run the floors' median per-cycle ratios with
+their quartiles and the ratio of the fastest windows, per CPU their ranges and how many runs met
+each floor by either estimator.
+
 Writes the same markdown to ``--out`` (default ``<runs>/summary.md``).
 
 Usage::
@@ -30,6 +35,7 @@ from mivecc_env import cli_args
 HERE = Path(__file__).resolve().parent
 DEFAULT_RUNS = HERE.parent / "docs" / "results" / "performance"
 RUN_FILE = re.compile(r"session(\d+)/speed_run(\d+)\.json$")
+PAIRED_FILE = re.compile(r"session(\d+)/speed_paired_run(\d+)\.json$")
 PEER = "sumo unregulated"
 #: (floor key in ``speed.json``, column title of the per-run table)
 FLOOR_COLUMNS = (
@@ -126,6 +132,78 @@ def markdown(records: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def load_paired_runs(runs_dir: Path) -> list[dict[str, Any]]:
+    """One record per ``speed_paired.py`` run file, ordered by session then run."""
+    records = []
+    for path in sorted(runs_dir.glob("session*/speed_paired_run*.json")):
+        match = PAIRED_FILE.search(path.as_posix())
+        if match is None:
+            continue
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+            rows = {r["engine"]: r for r in doc["summary"]}
+            records.append({
+                "session": int(match.group(1)), "run": int(match.group(2)),
+                "commit": doc["machine"]["git_commit"][:7],
+                "date_utc": doc["machine"]["date_utc"][:16].replace("T", " "),
+                "machine": machine_label(doc["machine"]),
+                "sumo_steps_per_s": float(rows[PEER]["median_steps_per_s"]),
+                "floors": {key: {
+                    "engine": f["engine"], "required": float(f["required_ratio"]),
+                    "median": float(rows[f["engine"]]["ratio_median"]),
+                    "q1": float(rows[f["engine"]]["ratio_q1"]),
+                    "q3": float(rows[f["engine"]]["ratio_q3"]),
+                    "best": float(rows[f["engine"]]["ratio_of_best"]),
+                } for key, f in doc["floors"].items()},
+            })  # fmt: skip
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise SummaryError(
+                f"{path}: not a speed_paired.py result ({type(err).__name__}: {err})") from None
+    records.sort(key=lambda r: (r["session"], r["run"]))
+    return records
+
+
+def paired_markdown(records: list[dict[str, Any]]) -> str:
+    """The paired-window runs: per run, then per CPU, as markdown."""
+    head = ["session", "run", "commit", "date (UTC)", "CPU", "SUMO-unreg. steps/s (median)",
+            *(title for _, title in FLOOR_COLUMNS)]
+    lines = ["Paired windows (`benchmarks/speed_paired.py`): per floor the median per-cycle "
+             "ratio [quartiles]; the ratio of the engines' fastest windows after the slash.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * 5 + "---:|" * (len(head) - 5)]
+    for r in records:
+        cells = [f"{f['median']:.2f} [{f['q1']:.2f}-{f['q3']:.2f}] / {f['best']:.2f}"
+                 for f in (r["floors"][key] for key, _ in FLOOR_COLUMNS)]
+        lines.append(f"| {r['session']} | {r['run']} | `{r['commit']}` | {r['date_utc']} | "
+                     f"{r['machine']} | {r['sumo_steps_per_s']:,.0f} | " + " | ".join(cells)
+                     + " |")
+    for machine in dict.fromkeys(r["machine"] for r in records):
+        group = [r for r in records if r["machine"] == machine]
+        lines += ["", f"{machine}: {len(group)} paired runs; per floor the range and median "
+                  "over the runs of each estimator, and the runs that met the floor by it:", "",
+                  "| floor | median per-cycle ratio: range, median | met | "
+                  "fastest windows: range, median | met |", "|---|---:|---|---:|---|"]
+        for key, title in FLOOR_COLUMNS:
+            need = group[0]["floors"][key]["required"]
+            cells = []
+            for est in ("median", "best"):
+                values = [r["floors"][key][est] for r in group]
+                met = sum(x >= need for x in values)
+                cells += [f"{min(values):.2f}-{max(values):.2f}x, "
+                          f"{statistics.median(values):.2f}x", f"{met} of {len(values)}"]
+            lines.append(f"| {title} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def summary_text(runs_dir: Path) -> str:
+    """The whole summary of the committed runs under ``runs_dir`` (``speed.py``'s, then the
+    paired ones if any)."""
+    records = load_runs(runs_dir)
+    if not records:
+        raise SummaryError(f"--runs {runs_dir}: no session<N>/speed_run<R>.json files")
+    paired = load_paired_runs(runs_dir)
+    return markdown(records) + ("\n" + paired_markdown(paired) if paired else "")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Print the summary and write it to ``--out``; returns the exit status."""
     p = cli_args.Parser(description=__doc__.splitlines()[0])
@@ -135,10 +213,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=None,
                    help="markdown file to write (default <runs>/summary.md)")
     args = p.parse_args(argv)
-    records = load_runs(args.runs)
-    if not records:
-        raise SummaryError(f"--runs {args.runs}: no session<N>/speed_run<R>.json files")
-    text = markdown(records)
+    text = summary_text(args.runs)
     out = args.out if args.out is not None else args.runs / "summary.md"
     cli_args.writable_dir("--out", out.parent)
     out.write_text(text, encoding="utf-8")

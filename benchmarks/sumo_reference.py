@@ -176,6 +176,119 @@ def _write_routes(workdir: str, routes: list[tuple[str, str]], density: float, e
     return path
 
 
+class SumoSession:
+    """One running libsumo simulation of the grid: started on ``with``, closed on exit.
+
+    ``run_steps(n)`` and ``run_for(seconds)`` step it and return the wall time and the
+    vehicle-steps (the sum of ``getIDCount()`` after each step, called inside the timed loop as
+    in :func:`run_sumo`). The route file's flows last ``horizon_s`` simulated seconds; stepping
+    past them raises RuntimeError (the network would drain and time an emptying grid).
+    libsumo runs one simulation per process at a time.
+    """
+
+    def __init__(self, rows: int, cols: int, density: float, seed: int = 0,
+                 junction_type: str = "unregulated", horizon_s: float = 3600.0) -> None:
+        _validate(rows, cols, density, 1, 0, junction_type)
+        if not (math.isfinite(horizon_s) and horizon_s > 0):
+            raise ValueError(f"horizon_s must be a finite number > 0, got {horizon_s!r}")
+        try:
+            import libsumo
+        except ImportError as exc:
+            raise ImportError(_INSTALL_HINT) from exc
+        self._sumo = libsumo
+        self.rows, self.cols, self.density, self.seed = rows, cols, float(density), int(seed)
+        self.junction_type, self.horizon_s = junction_type, float(horizon_s)
+        self.max_steps = round(self.horizon_s / STEP_LENGTH_S)  # steps the demand covers
+        self.steps_done = 0
+        self._workdir: tempfile.TemporaryDirectory[str] | None = None
+
+    def __enter__(self) -> SumoSession:
+        self._workdir = tempfile.TemporaryDirectory(prefix="mivecc_sumo_")
+        try:
+            wd = self._workdir.name
+            net = _build_net(wd, self.rows, self.cols, self.junction_type)
+            rou = _write_routes(wd, _through_routes(net), self.density, self.horizon_s + 10.0)
+            self._sumo.start([
+                "sumo", "-n", net, "-r", rou, "--no-step-log", "--no-warnings",
+                "--step-length", str(STEP_LENGTH_S), "--seed", str(self.seed),
+                "--time-to-teleport", "-1",
+            ])  # fmt: skip
+        except BaseException:
+            self._workdir.cleanup()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            self._sumo.close()
+        finally:
+            if self._workdir is not None:
+                self._workdir.cleanup()
+
+    def _check_horizon(self, more: int) -> None:
+        if self.steps_done + more > self.max_steps:
+            raise RuntimeError(
+                f"SUMO session: {self.steps_done + more} steps pass the demand horizon of "
+                f"{self.horizon_s:g} s; start it with a larger horizon_s")
+
+    def run_steps(self, steps: int) -> tuple[float, int]:
+        """Wall seconds of ``steps`` steps and the vehicle-steps they carried."""
+        self._check_horizon(steps)
+        step, count = self._sumo.simulationStep, self._sumo.vehicle.getIDCount
+        total = 0
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            step()
+            total += count()
+        elapsed = time.perf_counter() - t0
+        self.steps_done += steps
+        return elapsed, total
+
+    def run_for(self, seconds: float) -> tuple[int, float, int]:
+        """Step until at least ``seconds`` of wall time have passed: (steps, wall seconds,
+        vehicle-steps)."""
+        step, count = self._sumo.simulationStep, self._sumo.vehicle.getIDCount
+        clock = time.perf_counter
+        steps = total = 0
+        t0 = clock()
+        while True:
+            self._check_horizon(steps + 1)
+            step()
+            total += count()
+            steps += 1
+            elapsed = clock() - t0
+            if elapsed >= seconds:
+                break
+        self.steps_done += steps
+        return steps, elapsed, total
+
+    def vehicles(self) -> int:
+        """Vehicles in the network now."""
+        return int(self._sumo.vehicle.getIDCount())
+
+    def backlog(self) -> int:
+        """Vehicles waiting to be inserted now."""
+        return int(self._sumo.simulation.getMinExpectedNumber()) - self.vehicles()
+
+    def stats(self) -> dict[str, Any]:
+        """SUMO version, teleports and vehicles inserted so far."""
+
+        def stat(key: str) -> int:
+            return int(self._sumo.simulation.getParameter("", key))
+
+        return {"sumo_version": self._sumo.getVersion()[1],
+                "teleports": stat("stats.teleports.total"),
+                "inserted": stat("stats.vehicles.inserted")}
+
+    def count_call_us(self, calls: int = 1000) -> float:
+        """Cost of one ``getIDCount`` call [us]."""
+        count = self._sumo.vehicle.getIDCount
+        t1 = time.perf_counter()
+        for _ in range(calls):
+            count()
+        return (time.perf_counter() - t1) / calls * 1e6
+
+
 def run_sumo(
     rows: int,
     cols: int,
@@ -214,48 +327,18 @@ def run_sumo(
         RuntimeError: If SUMO inserted no vehicle (the routes did not load).
     """
     _validate(rows, cols, density, steps, warmup_steps, junction_type)
-    try:
-        import libsumo
-    except ImportError as exc:
-        raise ImportError(_INSTALL_HINT) from exc
-
-    end_s = (warmup_steps + steps) * STEP_LENGTH_S + 10.0
-    with tempfile.TemporaryDirectory(prefix="mivecc_sumo_") as workdir:
-        net = _build_net(workdir, rows, cols, junction_type)
-        rou = _write_routes(workdir, _through_routes(net), density, end_s)
-        libsumo.start([
-            "sumo", "-n", net, "-r", rou, "--no-step-log", "--no-warnings",
-            "--step-length", str(STEP_LENGTH_S), "--seed", str(int(seed)),
-            "--time-to-teleport", "-1",
-        ])  # fmt: skip
-        try:
-            step, count = libsumo.simulationStep, libsumo.vehicle.getIDCount
-            for _ in range(warmup_steps):
-                step()
-            queue_start = libsumo.simulation.getMinExpectedNumber() - count()
-            total = 0
-            t0 = time.perf_counter()
-            for _ in range(steps):
-                step()
-                total += count()
-            elapsed = time.perf_counter() - t0
-            t1 = time.perf_counter()
-            for _ in range(1000):
-                count()
-            count_us = (time.perf_counter() - t1) * 1e3
-
-            def stat(key: str) -> int:
-                return int(libsumo.simulation.getParameter("", key))
-
-            teleports, inserted = stat("stats.teleports.total"), stat("stats.vehicles.inserted")
-            backlog = libsumo.simulation.getMinExpectedNumber() - libsumo.vehicle.getIDCount()
-            version = libsumo.getVersion()[1]
-        finally:
-            libsumo.close()
-    if inserted == 0 or total == 0:
+    horizon_s = (warmup_steps + steps) * STEP_LENGTH_S
+    with SumoSession(rows, cols, density, seed, junction_type, horizon_s) as sumo:
+        sumo.run_steps(warmup_steps)
+        queue_start = sumo.backlog()
+        elapsed, total = sumo.run_steps(steps)
+        count_us = sumo.count_call_us()
+        stats = sumo.stats()
+        backlog = sumo.backlog()
+    if stats["inserted"] == 0 or total == 0:
         raise RuntimeError(
             f"SUMO carried no vehicles on the {rows}x{cols} {junction_type} grid "
-            f"(inserted {inserted}): the routes or the demand did not load"
+            f"(inserted {stats['inserted']}): the routes or the demand did not load"
         )
     return {
         "steps_per_s": steps / elapsed,
@@ -266,14 +349,14 @@ def run_sumo(
         "rows": rows,
         "cols": cols,
         "density": float(density),
-        "sumo_version": version,
+        "sumo_version": stats["sumo_version"],
         "junction_type": junction_type,
         "seed": int(seed),
         "warmup_steps": warmup_steps,
-        "teleports": teleports,
-        "inserted": inserted,
-        "insertion_backlog": int(backlog),
-        "queue_start": int(queue_start),
+        "teleports": stats["teleports"],
+        "inserted": stats["inserted"],
+        "insertion_backlog": backlog,
+        "queue_start": queue_start,
         "count_call_us": count_us,
     }
 

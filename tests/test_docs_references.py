@@ -1,4 +1,4 @@
-"""Every pointer the documentation gives resolves: files, ``page.md#anchor`` links, named sections.
+"""Every pointer the documentation gives resolves: files, links to headings, named sections.
 
 The docs and docstrings send readers to other places in three forms: a repository path
 (``docs/results/...``, ``benchmarks/speed.py``), a Markdown link with an anchor

@@ -50,7 +50,7 @@ def _write(folder: Path, session: int, run: int, doc: dict | str) -> None:
 def test_committed_summary_is_current() -> None:
     records = speed_summary.load_runs(RUNS)
     assert len(records) >= 16
-    text = speed_summary.markdown(records)
+    text = speed_summary.summary_text(RUNS)
     assert (RUNS / "summary.md").read_text(encoding="utf-8") == text
     performance = (ROOT / "docs" / "performance.md").read_text(encoding="utf-8")
     assert text in performance
@@ -85,6 +85,46 @@ def test_summary_marks_misses_and_groups_by_cpu(tmp_path: Path) -> None:
     assert row in text
     assert "| bare core, B=1 | 6.00-6.00x | 6.00x | - |" in text
     assert "batched env, EEC observations, B=1 |" not in text  # not measured: no row
+
+
+def _paired_doc(b64: float, best: float, sumo_steps_per_s: float = 1400.0) -> dict:
+    """A minimal ``speed_paired.json`` with the fields the summary reads."""
+    values = (("env_b1", "env EEC", 1.8, 1.0), ("batched_b64", "batched B=64", b64, 5.0),
+              ("core_b64", "core B=64", 17.0, 15.0))
+    summary = [{"engine": engine, "ratio_median": value, "ratio_q1": value - 0.5,
+                "ratio_q3": value + 0.5, "ratio_of_best": best if key == "batched_b64" else value}
+               for key, engine, value, _ in values]
+    summary.append({"engine": "sumo unregulated", "median_steps_per_s": sumo_steps_per_s})
+    return {
+        "machine": {"cpu": "Test CPU", "cpu_flags": ["avx512f"], "git_commit": "0123456789",
+                    "date_utc": "2026-11-27T16:00:00+00:00"},
+        "settings": {"window_s": 0.25},
+        "summary": summary,
+        "floors": {key: {"engine": engine, "measured_ratio": value, "required_ratio": need}
+                   for key, engine, value, need in values},
+    }
+
+
+def test_paired_runs_follow_the_speed_runs(tmp_path: Path) -> None:
+    _write(tmp_path, 23, 1, _run_doc(5.2))
+    for run, (b64, best) in enumerate(((5.3, 5.1), (5.15, 4.95), (4.9, 5.0)), start=1):
+        path = tmp_path / "session23" / f"speed_paired_run{run}.json"
+        path.write_text(json.dumps(_paired_doc(b64, best)), encoding="utf-8")
+    text = speed_summary.summary_text(tmp_path)
+    assert text.startswith(speed_summary.markdown(speed_summary.load_runs(tmp_path)))
+    assert "| 23 | 2 | `0123456` | 2026-11-27 16:00 | Test CPU, AVX-512 | 1,400 |" in text
+    assert "5.15 [4.65-5.65] / 4.95" in text
+    assert "Test CPU, AVX-512: 3 paired runs;" in text
+    row = ("| batched env, B=64 (floor 5x) | 4.90-5.30x, 5.15x | 2 of 3 | 4.95-5.10x, 5.00x "
+           "| 2 of 3 |")
+    assert row in text
+
+
+def test_without_paired_runs_the_summary_is_the_speed_runs(tmp_path: Path) -> None:
+    _write(tmp_path, 2, 1, _run_doc(5.5))
+    text = speed_summary.summary_text(tmp_path)
+    assert text == speed_summary.markdown(speed_summary.load_runs(tmp_path))
+    assert "Paired windows" not in text
 
 
 def test_a_cpu_seen_in_one_session_is_named_once(tmp_path: Path) -> None:
