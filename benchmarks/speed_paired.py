@@ -12,14 +12,16 @@ quiet moment more often. This benchmark gives every engine the same exposure ins
    (libsumo, one session);
 2. ``--cycles`` times, each engine in turn steps for one window of ``--window-s`` wall seconds
    (whole steps, at least one; the engines' order rotates from cycle to cycle);
-3. each engine's vehicle-steps/s in a cycle is divided by SUMO's in the same cycle (seconds
-   apart, so both saw about the same machine); the **median of these per-cycle ratios** is the
-   headline, with its quartiles. The ratio of the engines' fastest windows (``speed.py``'s
-   estimator, on equal windows) and of their median windows are printed beside it.
+3. the **headline ratio** is an engine's fastest window over SUMO's fastest window (vehicle-
+   steps/s): ``speed.py``'s estimator on windows of equal length, the nearest each engine came
+   to an idle machine. Beside it: the ratio of the median windows, and each engine's
+   vehicle-steps/s in a cycle over SUMO's in the same cycle (seconds apart, so both saw about
+   the same machine), median and quartiles. SUMO slows down more than mivecc's engines when the
+   host is busy, so these typical-load ratios come out higher than the headline.
 
 Vehicle-steps are each engine's own count (``Simulator.vehicle_steps``; SUMO: ``getIDCount()``
 after each step, inside the window). The floors of ``speed.py`` (3x3, 2100 veh/lane/h) are
-judged on the median per-cycle ratio.
+judged on the headline ratio.
 
 Files under ``--out`` (default ``benchmarks/results/speed_paired/``): ``speed_paired.csv`` (one
 row per window), ``speed_paired.json`` (windows, summary, floors, machine) and
@@ -121,14 +123,15 @@ def summarise(windows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def floors(summary: list[dict[str, Any]], grid: tuple[int, int], density: float
            ) -> dict[str, Any]:
-    """``speed.py``'s floors, judged on the median per-cycle ratio (only at 3x3 / 2100)."""
+    """``speed.py``'s floors, judged on the ratio of the fastest windows (only at 3x3 /
+    2100)."""
     at_floor = (grid, float(density)) == (speed.FLOOR_GRID, speed.FLOOR_DENSITY)
-    ratio = {r["engine"]: r.get("ratio_median") for r in summary}
+    ratio = {r["engine"]: r.get("ratio_of_best") for r in summary}
     result = {}
     for name, engine, need, text in speed.FLOORS:
         value = ratio.get(engine) if at_floor else None
         result[name] = {
-            "description": f"{text}: median per-cycle vehicle-steps/s ratio >= {need:g}x "
+            "description": f"{text}: fastest-window vehicle-steps/s ratio >= {need:g}x "
                            "SUMO-unregulated at 3x3, 2100 veh/lane/h",
             "engine": engine, "required_ratio": need, "measured_ratio": value,
             "met": None if value is None else bool(value >= need),
@@ -144,15 +147,15 @@ def markdown(summary: list[dict[str, Any]], floor: dict[str, Any], settings: dic
         f"one window of {settings['window_s']:g} s per engine per cycle.",
         "",
         "| engine | windows | steps/window (median) | vehicles/env | vehicle-steps/s (median) "
-        "| **per-cycle ratio to SUMO-unreg.: median** [quartiles] (min-max) "
-        "| ratio of fastest windows | ratio of median windows |",
+        "| **ratio to SUMO-unreg.: fastest windows** | median windows "
+        "| per cycle: median [quartiles] (min-max) |",
         "|---|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in summary:
         if "ratio_median" in r:
-            ratio = (f"**{r['ratio_median']:.2f}** [{r['ratio_q1']:.2f}-{r['ratio_q3']:.2f}] "
-                     f"({r['ratio_min']:.2f}-{r['ratio_max']:.2f}) | {r['ratio_of_best']:.2f} "
-                     f"| {r['ratio_of_medians']:.2f}")
+            ratio = (f"**{r['ratio_of_best']:.2f}** | {r['ratio_of_medians']:.2f} "
+                     f"| {r['ratio_median']:.2f} [{r['ratio_q1']:.2f}-{r['ratio_q3']:.2f}] "
+                     f"({r['ratio_min']:.2f}-{r['ratio_max']:.2f})")
         else:
             ratio = "(the peer) | | "
         lines.append(

@@ -8,9 +8,9 @@ per CPU, the range and median of each ratio and how many runs met each floor. Th
 nothing but the host's load: read the spread as the measurement's uncertainty.
 
 Then the same for every committed ``benchmarks/speed_paired.py`` run
-(``session<N>/speed_paired_run<R>.json``): per run the floors' median per-cycle ratios with
-their quartiles and the ratio of the fastest windows, per CPU their ranges and how many runs met
-each floor by either estimator.
+(``session<N>/speed_paired_run<R>.json``): per run the floors' ratios of the fastest windows
+(its headline) and the median per-cycle ratios with their quartiles, per CPU their ranges and
+how many runs met each floor by either estimator.
 
 Writes the same markdown to ``--out`` (default ``<runs>/summary.md``).
 
@@ -167,11 +167,12 @@ def paired_markdown(records: list[dict[str, Any]]) -> str:
     """The paired-window runs: per run, then per CPU, as markdown."""
     head = ["session", "run", "commit", "date (UTC)", "CPU", "SUMO-unreg. steps/s (median)",
             *(title for _, title in FLOOR_COLUMNS)]
-    lines = ["Paired windows (`benchmarks/speed_paired.py`): per floor the median per-cycle "
-             "ratio [quartiles]; the ratio of the engines' fastest windows after the slash.", "",
+    lines = ["Paired windows (`benchmarks/speed_paired.py`): per floor the ratio of the engines' "
+             "fastest windows (the headline), then the median per-cycle ratio [quartiles].", "",
              "| " + " | ".join(head) + " |", "|" + "---|" * 5 + "---:|" * (len(head) - 5)]
     for r in records:
-        cells = [f"{f['median']:.2f} [{f['q1']:.2f}-{f['q3']:.2f}] / {f['best']:.2f}"
+        cells = [f"{f['best']:.2f}" + ("" if f["best"] >= f["required"] else " (missed)")
+                 + f"; {f['median']:.2f} [{f['q1']:.2f}-{f['q3']:.2f}]"
                  for f in (r["floors"][key] for key, _ in FLOOR_COLUMNS)]
         lines.append(f"| {r['session']} | {r['run']} | `{r['commit']}` | {r['date_utc']} | "
                      f"{r['machine']} | {r['sumo_steps_per_s']:,.0f} | " + " | ".join(cells)
@@ -180,12 +181,12 @@ def paired_markdown(records: list[dict[str, Any]]) -> str:
         group = [r for r in records if r["machine"] == machine]
         lines += ["", f"{machine}: {len(group)} paired runs; per floor the range and median "
                   "over the runs of each estimator, and the runs that met the floor by it:", "",
-                  "| floor | median per-cycle ratio: range, median | met | "
-                  "fastest windows: range, median | met |", "|---|---:|---|---:|---|"]
+                  "| floor | fastest windows: range, median | met | "
+                  "median per-cycle ratio: range, median | met |", "|---|---:|---|---:|---|"]
         for key, title in FLOOR_COLUMNS:
             need = group[0]["floors"][key]["required"]
             cells = []
-            for est in ("median", "best"):
+            for est in ("best", "median"):
                 values = [r["floors"][key][est] for r in group]
                 met = sum(x >= need for x in values)
                 cells += [f"{min(values):.2f}-{max(values):.2f}x, "

@@ -113,9 +113,9 @@ def test_paired_runs_follow_the_speed_runs(tmp_path: Path) -> None:
     text = speed_summary.summary_text(tmp_path)
     assert text.startswith(speed_summary.markdown(speed_summary.load_runs(tmp_path)))
     assert "| 23 | 2 | `0123456` | 2026-11-27 16:00 | Test CPU, AVX-512 | 1,400 |" in text
-    assert "5.15 [4.65-5.65] / 4.95" in text
+    assert "4.95 (missed); 5.15 [4.65-5.65]" in text
     assert "Test CPU, AVX-512: 3 paired runs;" in text
-    row = ("| batched env, B=64 (floor 5x) | 4.90-5.30x, 5.15x | 2 of 3 | 4.95-5.10x, 5.00x "
+    row = ("| batched env, B=64 (floor 5x) | 4.95-5.10x, 5.00x | 2 of 3 | 4.90-5.30x, 5.15x "
            "| 2 of 3 |")
     assert row in text
 
