@@ -71,6 +71,25 @@ def test_readme_quotes_the_latest_machine_spread() -> None:
         assert f"{need:g}x: met in {met} of {len(values)} runs" in speed, key
 
 
+def test_readme_quotes_the_latest_paired_runs() -> None:
+    records = speed_summary.load_paired_runs(RUNS)
+    assert records, "no committed speed_paired runs"
+    machine = records[-1]["machine"]
+    group = [r for r in records if r["machine"] == machine]
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    speed = " ".join(readme[readme.index("Speed (`docs/performance.md`"):
+                            readme.index("## Documentation")].split())
+    assert f"{len(group)} runs" in speed
+    for key, _ in speed_summary.FLOOR_COLUMNS:
+        best = [r["floors"][key]["best"] for r in group]
+        assert f"{min(best):.2f}-{max(best):.2f}x" in speed, key
+    met_all = all(r["floors"][k]["best"] >= r["floors"][k]["required"]
+                  for r in group for k, _ in speed_summary.FLOOR_COLUMNS)
+    assert (f"every floor met in {len(group)} of {len(group)} runs" in speed) == met_all
+    medians = [r["floors"]["batched_b64"]["median"] for r in group]
+    assert f"{min(medians):.2f}-{max(medians):.2f}x at B = 64" in speed
+
+
 def test_summary_marks_misses_and_groups_by_cpu(tmp_path: Path) -> None:
     _write(tmp_path, 2, 1, _run_doc(5.5))
     _write(tmp_path, 2, 2, _run_doc(4.5, sumo=1650.4))
