@@ -266,20 +266,40 @@ def ratios(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
-def floors(ratio_rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The brief's floors at 3x3 / 2100 veh/lane/h: measured ratio and met / not met."""
+def floor_results(ratio_of: dict[str, float | None], measure: str) -> dict[str, Any]:
+    """The brief's floors from ``ratio_of`` (engine -> its ratio to SUMO-unregulated at 3x3 /
+    2100 veh/lane/h, None or absent when not measured); ``measure`` names the ratio."""
     result = {}
     for name, engine, need, text in FLOORS:
-        at = [r for r in ratio_rows if r["engine"] == engine
-              and (r["rows"], r["cols"], r["density"]) == (*FLOOR_GRID, FLOOR_DENSITY)]
-        value = at[0]["vehicle_steps_ratio"] if at else None
+        value = ratio_of.get(engine)
         result[name] = {
-            "description": f"{text}: vehicle-steps/s >= {need:g}x SUMO-unregulated at 3x3, "
+            "description": f"{text}: {measure} >= {need:g}x SUMO-unregulated at 3x3, "
                            "2100 veh/lane/h",
             "engine": engine, "required_ratio": need, "measured_ratio": value,
             "met": None if value is None else bool(value >= need),
         }
     return result
+
+
+def floors(ratio_rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The brief's floors at 3x3 / 2100 veh/lane/h: measured ratio and met / not met."""
+    at = {r["engine"]: r["vehicle_steps_ratio"] for r in ratio_rows
+          if (r["rows"], r["cols"], r["density"]) == (*FLOOR_GRID, FLOOR_DENSITY)}
+    return floor_results(at, "vehicle-steps/s")
+
+
+def floor_lines(floor: dict[str, Any]) -> list[str]:
+    """One markdown line per floor: met, not met or not measured."""
+    lines = []
+    for f in floor.values():
+        if f["met"] is None:
+            verdict = (f"NOT MEASURED (needs 3x3, 2100 veh/lane/h, {f['engine']} and SUMO "
+                       "unregulated in the run)")
+        else:
+            verdict = (f"{'MET' if f['met'] else 'NOT MET'} "
+                       f"(measured {f['measured_ratio']:.2f}x, need {f['required_ratio']:g}x)")
+        lines.append(f"- Floor: {f['description']}: **{verdict}**")
+    return lines
 
 
 def _num(x: float) -> str:
@@ -316,15 +336,7 @@ def markdown_tables(results: list[dict[str, Any]], ratio_rows: list[dict[str, An
                 f"| {r['vehicles']:.0f} ({r['peer_vehicles']:.0f}) "
                 f"| {r['queue']:.0f} ({r['peer_queue']:.0f}) |"
             )
-    lines.append("")
-    for f in floor.values():
-        if f["met"] is None:
-            verdict = (f"NOT MEASURED (needs 3x3, 2100 veh/lane/h, {f['engine']} and SUMO "
-                       "unregulated in the run)")
-        else:
-            verdict = (f"{'MET' if f['met'] else 'NOT MET'} "
-                       f"(measured {f['measured_ratio']:.2f}x, need {f['required_ratio']:g}x)")
-        lines.append(f"- Floor: {f['description']}: **{verdict}**")
+    lines += ["", *floor_lines(floor)]
     return "\n".join(lines)
 
 

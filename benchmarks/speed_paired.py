@@ -126,17 +126,8 @@ def floors(summary: list[dict[str, Any]], grid: tuple[int, int], density: float
     """``speed.py``'s floors, judged on the ratio of the fastest windows (only at 3x3 /
     2100)."""
     at_floor = (grid, float(density)) == (speed.FLOOR_GRID, speed.FLOOR_DENSITY)
-    ratio = {r["engine"]: r.get("ratio_of_best") for r in summary}
-    result = {}
-    for name, engine, need, text in speed.FLOORS:
-        value = ratio.get(engine) if at_floor else None
-        result[name] = {
-            "description": f"{text}: fastest-window vehicle-steps/s ratio >= {need:g}x "
-                           "SUMO-unregulated at 3x3, 2100 veh/lane/h",
-            "engine": engine, "required_ratio": need, "measured_ratio": value,
-            "met": None if value is None else bool(value >= need),
-        }
-    return result
+    ratio = {r["engine"]: r.get("ratio_of_best") for r in summary} if at_floor else {}
+    return speed.floor_results(ratio, "fastest-window vehicle-steps/s ratio")
 
 
 def markdown(summary: list[dict[str, Any]], floor: dict[str, Any], settings: dict[str, Any]
@@ -161,14 +152,7 @@ def markdown(summary: list[dict[str, Any]], floor: dict[str, Any], settings: dic
         lines.append(
             f"| {r['engine']} | {r['windows']} | {r['median_steps_per_window']:.0f} "
             f"| {r['mean_vehicles']:.0f} | {r['median_vehicle_steps_per_s']:,.0f} | {ratio} |")
-    lines.append("")
-    for f in floor.values():
-        if f["met"] is None:
-            verdict = f"NOT MEASURED (needs 3x3, 2100 veh/lane/h and {f['engine']} in the run)"
-        else:
-            verdict = (f"{'MET' if f['met'] else 'NOT MET'} "
-                       f"(measured {f['measured_ratio']:.2f}x, need {f['required_ratio']:g}x)")
-        lines.append(f"- Floor: {f['description']}: **{verdict}**")
+    lines += ["", *speed.floor_lines(floor)]
     return "\n".join(lines)
 
 
