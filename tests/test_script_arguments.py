@@ -4,7 +4,6 @@ status 2, no traceback (``mivecc_env.cli_args``, shared with the ``mivecc`` CLI)
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import math
 import sys
 from pathlib import Path
@@ -14,19 +13,12 @@ import pytest
 
 from mivecc_env import cli_args
 from mivecc_env.config import ConfigError
-
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+from tests.scripts import BENCHMARKS, load_benchmark
 
 
 def _script(name: str) -> ModuleType:
     """A benchmark script as a module (by path: it is not a package)."""
-    if str(BENCHMARKS) not in sys.path:
-        sys.path.insert(0, str(BENCHMARKS))  # the scripts import their siblings
-    spec = importlib.util.spec_from_file_location(f"script_{name}", BENCHMARKS / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark(name, f"script_{name}")
 
 
 def _status(name: str, argv: list[str]) -> int:

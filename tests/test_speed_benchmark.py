@@ -3,25 +3,14 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "speed.py"
+from tests.scripts import load_benchmark
 
-
-def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("mivecc_speed_benchmark", _PATH)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-speed = _load()
+speed = load_benchmark("speed", "mivecc_speed_benchmark")
 
 
 def test_quick_run_writes_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

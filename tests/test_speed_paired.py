@@ -3,25 +3,14 @@
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "speed_paired.py"
+from tests.scripts import load_benchmark
 
-
-def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("mivecc_speed_paired", _PATH)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-paired = _load()
+paired = load_benchmark("speed_paired", "mivecc_speed_paired")
 needs_sumo = pytest.mark.skipif(not paired.sumo_reference.sumo_available(),
                                 reason="Eclipse SUMO not installed")
 

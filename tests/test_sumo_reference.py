@@ -2,26 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import sys
 from pathlib import Path
-from types import ModuleType
 
 import pytest
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "sumo_reference.py"
+from tests.scripts import load_benchmark
 
-
-def _load() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("sumo_reference", _PATH)
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-sumo_reference = _load()
+sumo_reference = load_benchmark("sumo_reference", "sumo_reference")
 needs_sumo = pytest.mark.skipif(
     not sumo_reference.sumo_available(), reason="eclipse-sumo / libsumo not installed"
 )

@@ -1,0 +1,22 @@
+"""Load a benchmark script as a module, by its path (``benchmarks/`` is not a package)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+from types import ModuleType
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+def load_benchmark(name: str, module_name: str | None = None) -> ModuleType:
+    """Execute ``benchmarks/<name>.py`` as a fresh module named ``module_name`` (default
+    ``name``); the folder goes on ``sys.path`` first, since the scripts import their siblings."""
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.insert(0, str(BENCHMARKS))
+    spec = importlib.util.spec_from_file_location(module_name or name, BENCHMARKS / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
