@@ -105,3 +105,12 @@ def test_bad_arguments_exit_2(argv: list[str], expected: str,
         paired.main(argv)
     err = capsys.readouterr().err
     assert exc.value.code == 2 and err.count("\n") == 1 and expected in err, err
+
+
+def test_without_sumo_is_one_line_exit_2(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setattr(paired.sumo_reference, "sumo_available", lambda: False)
+    status = paired.cli_args.run(lambda: paired.main(["--quick", "--out", str(tmp_path)]),
+                                 "speed_paired.py")
+    err = capsys.readouterr().err
+    assert status == 2 and err.count("\n") == 1 and "pip install mivecc[sumo]" in err, err
