@@ -176,7 +176,7 @@ def build_parser() -> cli_args.Parser:
     p.add_argument("--seed", type=cli_args.seed, default=0)
     p.add_argument("--quick", action="store_true",
                    help="tiny run for tests: 1x1, 900 veh/lane/h, batched env B=2, core B=2, "
-                   "3 cycles of 0.02 s, 10 warm-up steps")
+                   "3 cycles of 0.02 s, 100 warm-up steps")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT,
                    help=f"output folder (default {DEFAULT_OUT.relative_to(HERE.parent)})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -189,7 +189,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cli_args.writable_dir("--out", args.out)
     if args.quick:
         args.grid, args.density, args.env_batches, args.batches = (1, 1), 900.0, [2], [2]
-        args.cycles, args.window_s, args.warmup = 3, 0.02, 10
+        args.cycles, args.window_s, args.warmup = 3, 0.02, 100
     if not sumo_reference.sumo_available():
         raise cli_args.InputError(
             "SUMO is needed (the peer of every ratio): pip install mivecc[sumo]")

@@ -76,7 +76,8 @@ def test_quick_run_writes_every_window(tmp_path: Path, capsys: pytest.CaptureFix
     assert len(rows) == 3 * 4
     for r in rows:
         assert int(r["steps"]) >= 1 and float(r["elapsed_s"]) >= 0.02
-        assert float(r["mean_vehicles"]) > 0  # every engine carried vehicles
+    for engine in engines:  # every engine carried vehicles (a window may be too short to)
+        assert sum(float(r["vehicle_steps"]) for r in rows if r["engine"] == engine) > 0, engine
     doc = json.loads((tmp_path / "speed_paired.json").read_text())
     assert doc["sumo"]["teleports"] == 0 and doc["sumo"]["inserted"] > 0
     assert all(f["met"] is None for f in doc["floors"].values())  # 1x1: no floor measured
