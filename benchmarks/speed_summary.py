@@ -26,7 +26,7 @@ import json
 import re
 import statistics
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,8 +34,6 @@ from mivecc_env import cli_args
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_RUNS = HERE.parent / "docs" / "results" / "performance"
-RUN_FILE = re.compile(r"session(\d+)/speed_run(\d+)\.json$")
-PAIRED_FILE = re.compile(r"session(\d+)/speed_paired_run(\d+)\.json$")
 PEER = "sumo unregulated"
 #: (floor key in ``speed.json``, column title of the per-run table)
 FLOOR_COLUMNS = (
@@ -64,35 +62,49 @@ def machine_label(machine: dict[str, Any]) -> str:
     return f"{machine.get('cpu', 'unknown CPU')}, {isa}"
 
 
-def load_runs(runs_dir: Path) -> list[dict[str, Any]]:
-    """One record per run file, ordered by session then run."""
+def _load(runs_dir: Path, name: str, script: str,
+          parse: Callable[[dict[str, Any]], dict[str, Any]]) -> list[dict[str, Any]]:
+    """One record per ``session<N>/<name><R>.json`` under ``runs_dir`` (ordered by session then
+    run): the run's session, number, commit, date and CPU, plus ``parse(doc)``'s fields; a file
+    that does not parse is a :class:`SummaryError` naming it and ``script``."""
+    pattern = re.compile(rf"session(\d+)/{name}(\d+)\.json$")
     records = []
-    for path in sorted(runs_dir.glob("session*/speed_run*.json")):
-        match = RUN_FILE.search(path.as_posix())
+    for path in sorted(runs_dir.glob(f"session*/{name}*.json")):
+        match = pattern.search(path.as_posix())
         if match is None:
             continue
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))
-            peer = next(r for r in doc["results"] if r["engine"] == PEER)
-            record = {
+            records.append({
                 "session": int(match.group(1)), "run": int(match.group(2)),
                 "commit": doc["machine"]["git_commit"][:7],
                 "date_utc": doc["machine"]["date_utc"][:16].replace("T", " "),
                 "machine": machine_label(doc["machine"]),
-                "sumo_steps_per_s": float(peer["steps_per_s"]),
-                **{key: float(doc["floors"][key]["measured_ratio"]) for key, _ in FLOOR_COLUMNS},
-                "ratios": {r["engine"]: float(r["vehicle_steps_ratio"]) for r in doc["ratios"]},
-                "required": {doc["floors"][key]["engine"]: float(doc["floors"][key][
-                    "required_ratio"]) for key, _ in FLOOR_COLUMNS},
-                **{f"{key}_required": float(doc["floors"][key]["required_ratio"])
-                   for key, _ in FLOOR_COLUMNS},
-            }  # fmt: skip
+                **parse(doc),
+            })
         except (OSError, ValueError, KeyError, StopIteration, TypeError) as err:
             raise SummaryError(
-                f"{path}: not a speed.py result ({type(err).__name__}: {err})") from None
-        records.append(record)
+                f"{path}: not a {script} result ({type(err).__name__}: {err})") from None
     records.sort(key=lambda r: (r["session"], r["run"]))
     return records
+
+
+def _speed_fields(doc: dict[str, Any]) -> dict[str, Any]:
+    peer = next(r for r in doc["results"] if r["engine"] == PEER)
+    floors = doc["floors"]
+    return {
+        "sumo_steps_per_s": float(peer["steps_per_s"]),
+        **{key: float(floors[key]["measured_ratio"]) for key, _ in FLOOR_COLUMNS},
+        "ratios": {r["engine"]: float(r["vehicle_steps_ratio"]) for r in doc["ratios"]},
+        "required": {floors[key]["engine"]: float(floors[key]["required_ratio"])
+                     for key, _ in FLOOR_COLUMNS},
+        **{f"{key}_required": float(floors[key]["required_ratio"]) for key, _ in FLOOR_COLUMNS},
+    }
+
+
+def load_runs(runs_dir: Path) -> list[dict[str, Any]]:
+    """One record per ``speed.py`` run file, ordered by session then run."""
+    return _load(runs_dir, "speed_run", "speed.py", _speed_fields)
 
 
 def _met(record: dict[str, Any], key: str) -> bool:
@@ -132,35 +144,22 @@ def markdown(records: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _paired_fields(doc: dict[str, Any]) -> dict[str, Any]:
+    rows = {r["engine"]: r for r in doc["summary"]}
+
+    def floor(f: dict[str, Any]) -> dict[str, Any]:
+        row = rows[f["engine"]]
+        return {"engine": f["engine"], "required": float(f["required_ratio"]),
+                "median": float(row["ratio_median"]), "q1": float(row["ratio_q1"]),
+                "q3": float(row["ratio_q3"]), "best": float(row["ratio_of_best"])}
+
+    return {"sumo_steps_per_s": float(rows[PEER]["median_steps_per_s"]),
+            "floors": {key: floor(f) for key, f in doc["floors"].items()}}
+
+
 def load_paired_runs(runs_dir: Path) -> list[dict[str, Any]]:
     """One record per ``speed_paired.py`` run file, ordered by session then run."""
-    records = []
-    for path in sorted(runs_dir.glob("session*/speed_paired_run*.json")):
-        match = PAIRED_FILE.search(path.as_posix())
-        if match is None:
-            continue
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-            rows = {r["engine"]: r for r in doc["summary"]}
-            records.append({
-                "session": int(match.group(1)), "run": int(match.group(2)),
-                "commit": doc["machine"]["git_commit"][:7],
-                "date_utc": doc["machine"]["date_utc"][:16].replace("T", " "),
-                "machine": machine_label(doc["machine"]),
-                "sumo_steps_per_s": float(rows[PEER]["median_steps_per_s"]),
-                "floors": {key: {
-                    "engine": f["engine"], "required": float(f["required_ratio"]),
-                    "median": float(rows[f["engine"]]["ratio_median"]),
-                    "q1": float(rows[f["engine"]]["ratio_q1"]),
-                    "q3": float(rows[f["engine"]]["ratio_q3"]),
-                    "best": float(rows[f["engine"]]["ratio_of_best"]),
-                } for key, f in doc["floors"].items()},
-            })  # fmt: skip
-        except (OSError, ValueError, KeyError, TypeError) as err:
-            raise SummaryError(
-                f"{path}: not a speed_paired.py result ({type(err).__name__}: {err})") from None
-    records.sort(key=lambda r: (r["session"], r["run"]))
-    return records
+    return _load(runs_dir, "speed_paired_run", "speed_paired.py", _paired_fields)
 
 
 def paired_markdown(records: list[dict[str, Any]]) -> str:

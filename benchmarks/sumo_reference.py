@@ -249,10 +249,12 @@ class SumoSession:
         vehicle-steps)."""
         step, count = self._sumo.simulationStep, self._sumo.vehicle.getIDCount
         clock = time.perf_counter
+        left = self.max_steps - self.steps_done  # steps the demand still covers
         steps = total = 0
         t0 = clock()
         while True:
-            self._check_horizon(steps + 1)
+            if steps == left:
+                self._check_horizon(steps + 1)  # raises: the demand would end
             step()
             total += count()
             steps += 1

@@ -93,6 +93,8 @@ def test_sumo_session_windows_and_horizon() -> None:
         assert sumo.steps_done == 30
         with pytest.raises(RuntimeError, match="demand horizon"):
             sumo.run_steps(1)
+        with pytest.raises(RuntimeError, match="demand horizon"):
+            sumo.run_for(10.0)  # a window stops at the horizon instead of draining the grid
 
 
 @pytest.mark.parametrize(("argv", "expected"), [
