@@ -36,7 +36,6 @@ Usage::
 from __future__ import annotations
 
 import csv
-import importlib.util
 import json
 import os
 import shlex
@@ -44,34 +43,22 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from types import ModuleType
 from typing import Any
 
 import numpy as np
+import speed  # a sibling: the script's folder is on sys.path
 
 from mivecc_env import cli_args
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "speed_paired"
-PEER = "sumo unregulated"
+PEER = speed.PEER  # "sumo unregulated"
 CSV_FIELDS = ("cycle", "engine", "batch", "steps", "elapsed_s", "vehicle_steps",
               "vehicle_steps_per_s", "mean_vehicles")
-
-
-def _load_sibling(name: str) -> ModuleType:
-    """Import ``benchmarks/<name>.py`` (the folder is not a package)."""
-    spec = importlib.util.spec_from_file_location(f"mivecc_bench_{name}", HERE / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-speed = _load_sibling("speed")
 sumo_reference = speed.sumo_reference
 
 
-def run_window(engine: Any, seconds: float) -> tuple[int, float, int]:
+def run_window(engine: speed.Engine, seconds: float) -> tuple[int, float, int]:
     """Step a mivecc engine until ``seconds`` of wall time have passed (at least one step):
     (steps, wall seconds, vehicle-steps)."""
     sim, step, clock = engine.sim, engine.step, time.perf_counter
@@ -206,7 +193,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     load_before = os.getloadavg() if hasattr(os, "getloadavg") else None
     t_start = time.perf_counter()
     # SUMO's demand must outlast every step it can take: its windows at up to 20 000 steps/s
-    horizon_s = (args.warmup + args.cycles * (args.window_s * 20_000 + 1)) * 0.1 + 60.0
+    horizon_s = ((args.warmup + args.cycles * (args.window_s * 20_000 + 1))
+                 * sumo_reference.STEP_LENGTH_S + 60.0)
     with sumo_reference.SumoSession(rows, cols, args.density, args.seed, "unregulated",
                                     horizon_s) as sumo:
         sumo.run_steps(args.warmup)
