@@ -41,6 +41,7 @@ def _tracked_text_files() -> tuple[Path, ...]:
     return tuple(ROOT / p for p in out.splitlines() if p.endswith(TEXT_SUFFIXES))
 
 
+@cache
 def _read(path: Path) -> str:
     return path.read_text(encoding="utf-8", errors="replace")
 
@@ -52,7 +53,8 @@ def anchor(heading: str) -> str:
     return "".join(c for c in text if c.isalnum() or c in "-_ ").replace(" ", "-")
 
 
-def _anchors(page: Path) -> set[str]:
+@cache
+def _anchors(page: Path) -> frozenset[str]:
     seen: dict[str, int] = {}
     out = set()
     in_code = False
@@ -65,15 +67,16 @@ def _anchors(page: Path) -> set[str]:
         n = seen.get(a, 0)
         seen[a] = n + 1
         out.add(a if n == 0 else f"{a}-{n}")
-    return out
+    return frozenset(out)
 
 
-def _section_names(page: Path) -> list[str]:
+@cache
+def _section_names(page: Path) -> tuple[str, ...]:
     """Headings and bold lead-ins (``**Name.**``) of a page, lower case, spaces collapsed."""
     text = _read(page)
     names = [ln.lstrip("#") for ln in text.splitlines() if ln.startswith("#")]
     names += re.findall(r"\*\*(.+?)\*\*", text, flags=re.S)
-    return [" ".join(n.split()).lower() for n in names]
+    return tuple(" ".join(n.split()).lower() for n in names)
 
 
 def _pointers(pattern: re.Pattern[str]) -> list[tuple[Path, re.Match[str]]]:
