@@ -57,6 +57,10 @@ def _status(name: str, argv: list[str]) -> int:
     ("paper_table", ["--from-csv", "absent.csv"],
      "argument --from-csv: must be an existing file, got 'absent.csv'"),
     ("machine_info", ["extra"], "unrecognized arguments: extra"),
+    ("paper_targets", ["--column", "x"], "--column 'x': needs at least one CSV after the label"),
+    ("paper_targets", ["--column", "x", "absent.csv"], "--column: no such file 'absent.csv'"),
+    ("paper_targets", ["--column", "x", "NOTES"],
+     "--column: NOTES is not a paper_table.csv with runs (no column 'rows')"),
 ])
 def test_bad_script_argument_is_one_line_exit_2(
     name: str, argv: list[str], expected: str, capsys: pytest.CaptureFixture[str],
