@@ -12,8 +12,8 @@ vehicles closer than 2 m), summed over the seeds.
 
 Not judged here: whether the training curves rise and settle (``docs/training.md``).
 
-Usage (the README's table; ``docs/results/paper_targets.md`` adds seeds 3-7, its command is
-in that file):
+Usage (the README's table; ``docs/results/paper_targets_released.md`` and
+``docs/results/paper_targets_default.md`` add seeds 3-7 and 6000-step runs, with their commands):
     python benchmarks/paper_targets.py \\
         --column "released model" docs/results/paper_table_released/paper_table.csv \\
             docs/results/training/session15/pt_ceiling_eec3_p10.csv \\
