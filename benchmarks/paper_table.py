@@ -128,15 +128,24 @@ def improvement(new: float, old: float) -> float:
     return 100.0 * (new - old) / old if old > 0 else float("nan")
 
 
+def cell_runs(rows: list[dict[str, Any]], grid: str) -> dict[tuple[str, float], list[dict]]:
+    """The runs of one grid (``ROWSxCOLS``) by ``(scheme, density)``, in the order given."""
+    r, c = (int(x) for x in grid.split("x"))
+    cells: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    for x in rows:
+        if (x["rows"], x["cols"]) == (r, c):
+            cells.setdefault((x["scheme"], x["density"]), []).append(x)
+    return cells
+
+
 def summarise(rows: list[dict[str, Any]], grid: str) -> tuple[str, dict]:
     """Markdown table of one grid and the per-(scheme, density) means."""
-    r, c = (int(x) for x in grid.split("x"))
-    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
-    densities = sorted({x["density"] for x in mine})
-    schemes = [s for s in SCHEMES if any(x["scheme"] == s for x in mine)]
+    cells = cell_runs(rows, grid)
+    densities = sorted({d for _, d in cells})
+    schemes = [s for s in SCHEMES if any(k == s for k, _ in cells)]
     mean: dict[tuple[str, float], dict[str, float]] = {}
     for s, d in itertools.product(schemes, densities):
-        runs = [x for x in mine if x["scheme"] == s and x["density"] == d]
+        runs = cells.get((s, d))
         if runs:
             mean[(s, d)] = {
                 "v": float(np.mean([x["avg_travel_velocity_mps"] for x in runs])),
@@ -185,16 +194,16 @@ def near_miss_table(rows: list[dict[str, Any]], grid: str) -> str:
 
     Empty when the runs predate these keys (e.g. an old ``--from-csv`` file).
     """
-    r, c = (int(x) for x in grid.split("x"))
-    mine = [x for x in rows if (x["rows"], x["cols"]) == (r, c)]
-    if not mine or any(x.get("released_velocity_mps", "") == "" for x in mine):
+    cells = cell_runs(rows, grid)
+    if not cells or any(x.get("released_velocity_mps", "") == ""
+                        for runs in cells.values() for x in runs):
         return ""
-    densities = sorted({x["density"] for x in mine})
-    schemes = [s for s in SCHEMES if any(x["scheme"] == s for x in mine)]
+    densities = sorted({d for _, d in cells})
+    schemes = [s for s in SCHEMES if any(k == s for k, _ in cells)]
     combine = {"min": np.min, "mean": np.mean, "sum": np.sum}
     cell: dict[tuple[str, float], dict[str, float]] = {}
     for s, d in itertools.product(schemes, densities):
-        runs = [x for x in mine if x["scheme"] == s and x["density"] == d]
+        runs = cells.get((s, d))
         if runs:
             cell[(s, d)] = {"rv": float(np.mean([float(x["released_velocity_mps"])
                                                  for x in runs]))}

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from paper_table import PAPER_3X3, improvement, merge_runs, read_runs_csv
+from paper_table import PAPER_3X3, cell_runs, improvement, merge_runs, read_runs_csv
 
 from mivecc_env import cli_args
 
@@ -39,6 +39,14 @@ METRICS = {"released": ("released_velocity_mps", "released-style velocity"),
 #: Densities from which EE vs E must reach the paper's value [veh/lane/h].
 EE_FROM_DENSITY = 1500
 LEARNED = ("E", "EE", "EEC")
+#: The targets, in the order of the table's rows.
+ORDER = "EEC > EE > E at every density"
+NO_EVENTS = "0 strict events in every cell (E, EE, EEC)"
+EE_PAPER = f"EE vs E [%] at least the paper's from {EE_FROM_DENSITY} on"
+EEC_POSITIVE = "EEC vs EE [%] positive at every density"
+EEC_HALF = "EEC vs EE [%] at least half the paper's"
+EDGE_CEILING = "the learned edge at or above the constant +3 edge (EE+3)"
+CLOUD_CEILING = "the learned cloud at or above the constant +3 cloud (EEC+3)"
 
 
 class Cell(NamedTuple):
@@ -46,21 +54,15 @@ class Cell(NamedTuple):
 
     velocity: float  # mean of the metric [m/s]
     events: int  # strict collision events, summed over the seeds
-    seeds: tuple[int, ...]
-    cloud_period: int
+    cloud_period: int  # steps between cloud decisions
 
 
 def cells(rows: list[dict[str, Any]], key: str) -> dict[tuple[str, int], Cell]:
-    """``(scheme, density) -> Cell`` of the 3x3 runs."""
-    groups: dict[tuple[str, int], list[dict[str, Any]]] = {}
-    for row in rows:
-        if (row["rows"], row["cols"]) == (3, 3):
-            groups.setdefault((row["scheme"], int(row["density"])), []).append(row)
-    return {k: Cell(float(np.mean([float(r[key]) for r in runs])),
-                    int(sum(float(r["collisions"]) for r in runs)),
-                    tuple(sorted(int(r["seed"]) for r in runs)),
-                    int(runs[0].get("cloud_period") or 1))
-            for k, runs in groups.items()}
+    """``(scheme, density) -> Cell`` of the 3x3 runs (grouped by ``paper_table.cell_runs``)."""
+    return {(scheme, int(density)): Cell(float(np.mean([float(r[key]) for r in runs])),
+                                         int(sum(float(r["collisions"]) for r in runs)),
+                                         int(runs[0].get("cloud_period") or 1))
+            for (scheme, density), runs in cell_runs(rows, "3x3").items()}
 
 
 def _gain(table: dict[tuple[str, int], Cell], a: str, b: str, density: int) -> float:
@@ -94,85 +96,70 @@ def _judge(misses: list[int], detail: str, judged: Sequence[int] = ()) -> str:
 
 
 def judge(rows: list[dict[str, Any]], key: str) -> list[tuple[str, str]]:
-    """``(target, verdict with its numbers)`` for every target this module judges."""
+    """``(target, verdict with its numbers)`` for every target this module judges, in the
+    order of :data:`ORDER` ... :data:`CLOUD_CEILING`; "no data" where a scheme is missing."""
     table = cells(rows, key)
-    no_data = "no data (needs {})"
-    out: list[tuple[str, str]] = []
+    verdicts: dict[str, str] = {}
 
     ds = _densities(table, LEARNED)
     if ds:
         misses = [d for d in ds if not table[("EEC", d)].velocity > table[("EE", d)].velocity
                   > table[("E", d)].velocity]
-        out.append(("EEC > EE > E at every density", _judge(misses, f"{ds[0]}-{ds[-1]}")))
+        verdicts[ORDER] = _judge(misses, f"{ds[0]}-{ds[-1]}")
         hits = []
         for s in LEARNED:
             where = [d for d in ds if table[(s, d)].events]
             if where:
                 total = sum(table[(s, d)].events for d in where)
                 hits.append(f"{s} {total} ({', '.join(map(str, where))})")
-        out.append(("0 strict events in every cell (E, EE, EEC)",
-                    "met" if not hits else "not met: " + ", ".join(hits)))
-    else:
-        out += [("EEC > EE > E at every density", no_data.format("E, EE, EEC")),
-                ("0 strict events in every cell (E, EE, EEC)", no_data.format("E, EE, EEC"))]
+        verdicts[NO_EVENTS] = "met" if not hits else "not met: " + ", ".join(hits)
 
     ds = [d for d in _densities(table, ("E", "EE")) if d >= EE_FROM_DENSITY]
-    target = f"EE vs E [%] at least the paper's from {EE_FROM_DENSITY} on"
     if ds:
         gains = [_gain(table, "EE", "E", d) for d in ds]
         paper = [PAPER_3X3["EE vs E"][d] for d in ds]
         misses = [d for d, g, p in zip(ds, gains, paper, strict=True) if g < p]
-        out.append((target, _judge(misses, f"{_values(gains)} against {_values(paper, False)}"
-                                   f" at {_at(ds)}")))
-    else:
-        out.append((target, no_data.format("E, EE")))
+        verdicts[EE_PAPER] = _judge(
+            misses, f"{_values(gains)} against {_values(paper, False)} at {_at(ds)}")
 
     ds = _densities(table, ("EE", "EEC"))
     if ds:
         gains = [_gain(table, "EEC", "EE", d) for d in ds]
         half = [PAPER_3X3["EEC vs EE"][d] / 2 for d in ds]
-        span = f"{min(gains):+.2f} to {max(gains):+.2f}"
-        out.append(("EEC vs EE [%] positive at every density",
-                    _judge([d for d, g in zip(ds, gains, strict=True) if g <= 0], span)))
+        verdicts[EEC_POSITIVE] = _judge([d for d, g in zip(ds, gains, strict=True) if g <= 0],
+                                        f"{min(gains):+.2f} to {max(gains):+.2f}")
         misses = [i for i, (g, h) in enumerate(zip(gains, half, strict=True)) if g < h]
         detail = ", ".join(f"{gains[i]:+.2f} against {half[i]:g} at {ds[i]}" for i in misses)
-        out.append(("EEC vs EE [%] at least half the paper's",
-                    _judge([ds[i] for i in misses], detail)))
-    else:
-        out += [("EEC vs EE [%] positive at every density", no_data.format("EE, EEC")),
-                ("EEC vs EE [%] at least half the paper's", no_data.format("EE, EEC"))]
+        verdicts[EEC_HALF] = _judge([ds[i] for i in misses], detail)
 
     ds = _densities(table, ("E", "EE", "EE+3"))
-    target = "the learned edge at or above the constant +3 edge (EE+3)"
     if ds:
-        ours = [_gain(table, "EE", "E", d) for d in ds]
-        ceiling = [_gain(table, "EE+3", "E", d) for d in ds]
-        share = [100 * improvement(table[("EE", d)].velocity, table[("E", d)].velocity)
-                 / improvement(table[("EE+3", d)].velocity, table[("E", d)].velocity)
-                 for d, c in zip(ds, ceiling, strict=True) if c > 0]
+        ours = [improvement(table[("EE", d)].velocity, table[("E", d)].velocity) for d in ds]
+        ceiling = [improvement(table[("EE+3", d)].velocity, table[("E", d)].velocity)
+                   for d in ds]
+        share = [100 * o / c for o, c in zip(ours, ceiling, strict=True) if round(c, 2) > 0]
         events = [table[("EE+3", d)].events for d in ds]
         detail = (f"EE vs E is {min(share):.0f}-{max(share):.0f} % of EE+3 vs E; EE+3 has "
                   f"{min(events)}-{max(events)} strict events per cell")
-        out.append((target, _judge([d for d, o, c in zip(ds, ours, ceiling, strict=True)
-                                    if o < c], detail, ds)))
-    else:
-        out.append((target, no_data.format("E, EE, EE+3")))
+        misses = [d for d, o, c in zip(ds, ours, ceiling, strict=True)
+                  if round(o, 2) < round(c, 2)]
+        verdicts[EDGE_CEILING] = _judge(misses, detail, ds)
 
     ds = _densities(table, ("EE", "EEC", "EEC+3"))
     if ds:
         period = table[("EEC+3", ds[0])].cloud_period
-        target = f"the learned cloud at or above the constant +3 cloud (EEC+3, every {period} " + (
-            "step)" if period == 1 else "steps)")
-        ours = [_gain(table, "EEC", "EE", d) for d in ds]
-        ceiling = [_gain(table, "EEC+3", "EE", d) for d in ds]
-        gaps = [round(o - c, 2) for o, c in zip(ours, ceiling, strict=True)]
-        detail = f"EEC vs EE minus EEC+3 vs EE: {min(gaps):+.2f} to {max(gaps):+.2f} points"
-        out.append((target, _judge([d for d, g in zip(ds, gaps, strict=True) if g < 0],
-                                   detail)))
-    else:
-        out.append(("the learned cloud at or above the constant +3 cloud (EEC+3)",
-                    no_data.format("EE, EEC, EEC+3")))
-    return out
+        gaps = [round(_gain(table, "EEC", "EE", d) - _gain(table, "EEC+3", "EE", d), 2)
+                for d in ds]
+        detail = (f"EEC vs EE minus EEC+3 vs EE (every {period} step{'s' * (period > 1)}): "
+                  f"{min(gaps):+.2f} to {max(gaps):+.2f} points")
+        verdicts[CLOUD_CEILING] = _judge([d for d, g in zip(ds, gaps, strict=True) if g < 0],
+                                         detail)
+
+    needs = {ORDER: LEARNED, NO_EVENTS: LEARNED, EE_PAPER: ("E", "EE"),
+             EEC_POSITIVE: ("EE", "EEC"), EEC_HALF: ("EE", "EEC"),
+             EDGE_CEILING: ("E", "EE", "EE+3"), CLOUD_CEILING: ("EE", "EEC", "EEC+3")}
+    return [(t, verdicts.get(t, f"no data (needs {', '.join(schemes)})"))
+            for t, schemes in needs.items()]
 
 
 def column_metric(rows: list[dict[str, Any]], metric: str, label: str) -> tuple[str, str]:
