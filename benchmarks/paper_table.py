@@ -19,6 +19,8 @@ and seeds of a (grid, scheme) run as one batch of environments
 * in ``paper_table.md`` also, per grid: the released-style velocity (entry to 5 m past the last
   intersection centre, no entry wait; its improvement rates) and the near-miss measures of
   every scheme (``mivecc_env.sim.near_miss``).
+* ``--set KEY=VALUE ...`` changes config fields for every run (e.g. ``cloud_graphs=per_lane``,
+  the paper's per-lane cloud graphs); the CSV rows record them,
 * ``machine.json`` - the CPU, libraries and commit the runs were made on (a line of it heads
   ``paper_table.md``): runs with a learned policy reproduce bit for bit on the same kind of CPU,
   not across CPUs (``benchmarks/table_diff.py`` compares two tables).
@@ -43,6 +45,7 @@ from machine_info import describe, machine_info
 from tqdm import tqdm
 
 from mivecc_env import cli_args
+from mivecc_env.config import ALIASES, from_overrides
 
 SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
 #: Constant-action ceilings: the scheme run, and the coordinator replaced by a constant +3 m/s^2
@@ -63,28 +66,29 @@ COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"),
 
 
 def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None, str,
-                    int | None]) -> list[dict[str, Any]]:
+                    int | None, dict[str, Any]]) -> list[dict[str, Any]]:
     """All densities and seeds of one (scheme, grid) as one batch of environments."""
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
     from mivecc_agents.evaluation import evaluate_batch
     from mivecc_agents.policies import constant_policy, pretrained_policies
-    from mivecc_env.config import MiVeCCConfig
 
-    scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period = job
+    (scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period,
+     overrides) = job
     policies = pretrained_policies(model, edge=edge_path, cloud=cloud_path)
     run_scheme = scheme
     if scheme in CEILINGS:
         run_scheme, kind = CEILINGS[scheme]
-        k = getattr(MiVeCCConfig(), f"k_{kind}")
+        k = getattr(from_overrides(model=model, **overrides), f"k_{kind}")
         policies[kind] = constant_policy(kind, 3.0, k)
     # a learned cloud decides at the period it was trained with (evaluate_batch adopts it),
     # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both
     extra = {"cloud_period": cloud_period} if cloud_period and run_scheme == "EEC" else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
-                         progress=False, warn=False, model=model, **extra)
+                         progress=False, warn=False, model=model, **overrides, **extra)
     for row in out:
+        row.update(overrides)
         row.update(scheme=scheme, model=model)
     return out
 
@@ -347,6 +351,27 @@ def _paired_gains(rows: list[dict[str, Any]], grid: str, key: str = "avg_travel_
     return out
 
 
+#: Config fields the table's own options set (--grids, --densities, --schemes, --steps,
+#: --model, --cloud-period): not accepted by --set.
+OWN_FIELDS = {"rows": "--grids", "cols": "--grids", "density_vplh": "--densities",
+              "scheme": "--schemes", "max_steps": "--steps", "model": "--model",
+              "cloud_period": "--cloud-period"}
+
+
+def config_overrides(items: Sequence[str], model: str) -> dict[str, Any]:
+    """``--set`` items as config overrides, checked now (one line and exit status 2 for a
+    malformed item, an unknown field, a value out of range or a field an option sets)."""
+    from mivecc_agents.cli import parse_set_items
+
+    overrides = parse_set_items(items)
+    for key in overrides:
+        name = ALIASES.get(key, key)
+        if name in OWN_FIELDS:
+            raise cli_args.InputError(f"--set {key}: use {OWN_FIELDS[name]} instead")
+    from_overrides(model=model, **overrides)  # ConfigError naming the field and its range
+    return overrides
+
+
 def _grid_name(text: str) -> str:
     """Argument type: a grid ``ROWSxCOLS`` (checked by :func:`cli_args.grid`), kept as the
     name ``summarise`` and the file names use."""
@@ -368,6 +393,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser.add_argument("--cloud-period", type=cli_args.count(1), default=None,
                         help="steps between cloud decisions of EEC and EEC+3 (default: a "
                         "learned cloud's training period; EEC+3 every step)")
+    parser.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+", default=[],
+                        help="other config fields for every run, e.g. cloud_graphs=per_lane "
+                        "(`mivecc fields` lists them; not the ones the options above set)")
     parser.add_argument("--workers", type=cli_args.count(1), default=2)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
     parser.add_argument("--from-csv", type=cli_args.existing_file, nargs="+", default=None,
@@ -381,13 +409,14 @@ def main(argv: Sequence[str] | None = None) -> Path:
         cli_args.check_distinct(f"--{option}", getattr(args, option))
     if args.cloud_period is not None and not 1 <= args.cloud_period <= 1000:
         parser.error(f"--cloud-period: must be in [1, 1000] steps, got {args.cloud_period}")
+    overrides = config_overrides(args.set_items, args.model)
 
     jobs = []  # one batch (all densities x seeds) per grid and scheme
     for grid in args.grids:
         r, c = (int(x) for x in grid.split("x"))
         for scheme in args.schemes:
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
-                         args.edge, args.cloud, args.model, args.cloud_period))
+                         args.edge, args.cloud, args.model, args.cloud_period, overrides))
     if args.from_csv:
         rows = merge_runs([read_runs_csv(path) for path in args.from_csv])
     elif args.workers > 1:

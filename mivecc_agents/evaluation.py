@@ -215,12 +215,16 @@ def evaluate_scheme(
     a_max = cfg.a_max_mps2
 
     def act(policy: Policy, agents: list[str], obs: dict, infos: dict) -> None:
-        obs_batch = np.stack([obs[a] for a in agents])
+        # one (K, K, 3) graph per row (the per-lane cloud has several per agent)
         mask = np.stack([infos[a]["mask"] for a in agents])
-        out = np.asarray(policy(obs_batch, mask), dtype=np.float32)
-        if out.shape != mask.shape:
-            raise ValueError(f"policy returned shape {out.shape}, expected {mask.shape}")
+        k = mask.shape[-1]
+        rows = mask.reshape(-1, k)
+        obs_batch = np.stack([obs[a] for a in agents]).reshape(-1, k, k, 3)
+        out = np.asarray(policy(obs_batch, rows), dtype=np.float32)
+        if out.shape != rows.shape:
+            raise ValueError(f"policy returned shape {out.shape}, expected {rows.shape}")
         np.clip(out, -a_max, a_max, out=out)
+        out = out.reshape(mask.shape)
         for i, a in enumerate(agents):
             actions[a] = out[i]
 
@@ -369,7 +373,9 @@ def evaluate_batch(
     # one call for the whole batch where it gives the per-environment calls' bits
     edge_stacked = "edge" in needed and stacking_is_exact(
         edge_policy, b, env.n_edge, env.k_edge)
-    cloud_stacked = "cloud" in needed and stacking_is_exact(cloud_policy, b, 1, env.k_cloud)
+    n_cloud = cfg.n_cloud_graphs  # the cloud's graphs per environment (1, or one per lane)
+    cloud_stacked = "cloud" in needed and stacking_is_exact(cloud_policy, b, n_cloud,
+                                                            env.k_cloud)
     chunk = 100
     t0 = time.perf_counter()
     for i in range(int(steps)):
@@ -380,12 +386,15 @@ def evaluate_batch(
             # the env ignores the cloud action of an environment that does not decide on this
             # step (cloud_period > 1): its policy is not called there
             decides = env.cloud_decides
-            cloud = act(cloud_policy, step.cloud_obs[:, None], step.cloud_mask[:, None],
-                        cloud_stacked, np.flatnonzero(decides).tolist())[:, 0]
+            k = env.k_cloud
+            cloud = act(cloud_policy, step.cloud_obs.reshape(b, n_cloud, k, k, 3),
+                        step.cloud_mask.reshape(b, n_cloud, k), cloud_stacked,
+                        np.flatnonzero(decides).tolist()).reshape(b, *env.cloud_action_shape)
         before, step = step, env.step(edge, cloud)
         if on_step is not None:
             on_step(before, edge, cloud if cloud is None or decides.all()
-                    else np.where(decides[:, None], cloud, np.nan), step)
+                    else np.where(decides.reshape(-1, *[1] * (cloud.ndim - 1)), cloud, np.nan),
+                    step)
         if bar is not None and (i + 1) % chunk == 0:
             bar.update(chunk)
     wall = time.perf_counter() - t0

@@ -23,10 +23,12 @@ key                            shape                                        dtyp
 =============================  ===========================================  ================
 
 with ``g`` in ``groups`` (``edge``: ``n_g`` = number of intersections, K = ``k_edge``;
-``cloud``: ``n_g`` = 1, K = ``k_cloud``). ``(g, "mask")`` is the same tensor as
-``(g, "info", "mask")`` (the pipeline of ``training.make_env`` copies it there). The episode
-summary (whole network) is in group ``s`` = ``cloud``, as the ParallelEnv puts it in
-``cloud_0``'s info; when only ``edge`` is exposed, it is under ``edge`` (broadcast to the
+``cloud``: ``n_g`` = 1, K = ``k_cloud``; with ``cloud_graphs="per_lane"`` ``n_g`` = the
+number of through lanes, one agent ``cloud_<lane>`` per lane graph, each with the network's
+cloud reward: there the ParallelEnv has one ``cloud_0`` with all the graphs). ``(g, "mask")``
+is the same tensor as ``(g, "info", "mask")`` (the pipeline of ``training.make_env`` copies it
+there). The episode summary (whole network) is in group ``s`` = ``cloud``, as the ParallelEnv
+puts it in ``cloud_0``'s info; when only ``edge`` is exposed, it is under ``edge`` (broadcast to the
 ``n_edge`` agents without a copy).
 
 Partial resets: TorchRL passes ``"_reset"`` (B, 1); only those environments restart
@@ -128,7 +130,7 @@ class MiVeCCTorchEnv(EnvBase):
         self.summary_keys = tuple(summary_keys)
         c = self._batched.config
         self.config = c
-        self._n = {"edge": c.n_intersections, "cloud": 1}
+        self._n = {"edge": c.n_intersections, "cloud": c.n_cloud_graphs}
         self._k = {"edge": c.k_edge, "cloud": c.k_cloud}
         self.group_map = {
             g: [f"{g}_{i}" for i in range(self._n[g])] for g in groups
@@ -206,7 +208,8 @@ class MiVeCCTorchEnv(EnvBase):
         if "edge" in self.groups:
             edge = tensordict.get(("edge", "action")).detach().cpu().numpy()
         if "cloud" in self.groups:
-            cloud = tensordict.get(("cloud", "action")).detach().cpu().numpy()[:, 0]
+            cloud = tensordict.get(("cloud", "action")).detach().cpu().numpy().reshape(
+                self.batch_size[0], *self.config.cloud_action_shape)
         n = self.raw_edge_period
         raw = None
         if n and edge is not None:
@@ -231,10 +234,13 @@ class MiVeCCTorchEnv(EnvBase):
             n = self._n[g]
             if g == "edge":
                 o, m, r, terms = step.edge_obs, step.edge_mask, step.edge_reward, step.edge_terms
-            else:  # one cloud agent: keep the agent dimension
-                o, m = step.cloud_obs[:, None], step.cloud_mask[:, None]
-                r = step.cloud_reward[:, None]
-                terms = {k: v[:, None] for k, v in step.cloud_terms.items()}
+            else:  # one agent per cloud graph, each with the network's reward
+                k = self._k[g]
+                o = step.cloud_obs.reshape(b, n, k, k, 3)
+                m = step.cloud_mask.reshape(b, n, k)
+                r = np.broadcast_to(step.cloud_reward[:, None], (b, n))
+                terms = {key: np.broadcast_to(v[:, None], (b, n))
+                         for key, v in step.cloud_terms.items()}
             mask = torch.from_numpy(m)
             info = {k: _f32(terms[k]) for k in REWARD_TERMS}
             if g == self.summary_group:
@@ -242,7 +248,8 @@ class MiVeCCTorchEnv(EnvBase):
                     info[key] = _f32(summary[key])[:, None].expand(b, n)
             info["mask"] = mask
             if g == "cloud" and self._holds_cloud:
-                info["decides"] = torch.from_numpy(self._batched.cloud_decides)[:, None]
+                info["decides"] = torch.from_numpy(self._batched.cloud_decides)[:, None].expand(
+                    b, n)
             td = {
                 "observation": torch.from_numpy(o),
                 "mask": mask,

@@ -69,8 +69,10 @@ class BatchStep:
         edge_obs: (B, n_edge, K_edge, K_edge, 3) float32 edge state graphs, ``None`` unless
             ``"edge"`` is observed.
         edge_mask: (B, n_edge, K_edge) float32, 1 for a real decision vehicle (or ``None``).
-        cloud_obs: (B, K_cloud, K_cloud, 3) float32 cloud state graph (or ``None``).
-        cloud_mask: (B, K_cloud) float32 (or ``None``).
+        cloud_obs: (B, K_cloud, K_cloud, 3) float32 cloud state graph, with
+            ``cloud_graphs="per_lane"`` (B, n_lanes, K_cloud, K_cloud, 3): ``(B,
+            *config.cloud_graph_shape)`` (or ``None``).
+        cloud_mask: (B, *config.cloud_action_shape) float32 (or ``None``).
         edge_reward: (B, n_edge) float64, the sum of ``edge_terms``.
         cloud_reward: (B,) float64, the sum of ``cloud_terms``.
         edge_terms / cloud_terms: ``REWARD_TERMS`` -> (B, n_edge) / (B,) float64 (the edge
@@ -161,6 +163,8 @@ class BatchedMiVeCCEnv:
             raise ConfigError(str(err)) from err
         self.n_edge = c.n_intersections
         self.k_edge, self.k_cloud = c.k_edge, c.k_cloud
+        #: the cloud's observation and action shapes per environment (``config``'s)
+        self.cloud_graph_shape, self.cloud_action_shape = c.cloud_graph_shape, c.cloud_action_shape
         # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
         self._a_limit = c.a_max_mps2 + 1e-6
         self._seed_rngs = [np.random.default_rng() for _ in range(self.batch_size)]
@@ -318,9 +322,10 @@ class BatchedMiVeCCEnv:
         Args:
             edge_action: (B, n_edge, K_edge) accelerations [m/s^2] of each edge node's columns,
                 or ``None`` (no edge action: the on-board rules decide).
-            cloud_action: (B, K_cloud) accelerations [m/s^2] of the cloud node's columns, or
-                ``None``. Actions of padded columns are ignored. Under scheme ``E`` both are
-                ignored, under ``EE`` the cloud action is.
+            cloud_action: (B, K_cloud) accelerations [m/s^2] of the cloud node's columns
+                (``(B, n_lanes, K_cloud)`` with ``cloud_graphs="per_lane"``: ``(B,
+                *cloud_action_shape)``), or ``None``. Actions of padded columns are ignored.
+                Under scheme ``E`` both are ignored, under ``EE`` the cloud action is.
                 With ``cloud_period = n > 1`` the cloud action is used only on the
                 environments' decision steps (:attr:`cloud_decides`) and then held by the
                 vehicles it commands (:mod:`mivecc_env.cloud_hold`); on other steps it is
@@ -342,7 +347,8 @@ class BatchedMiVeCCEnv:
         """
         edge = self._checked(edge_action, "edge_action", (self.batch_size, self.n_edge,
                                                           self.k_edge))
-        cloud = self._checked(cloud_action, "cloud_action", (self.batch_size, self.k_cloud))
+        cloud = self._checked(cloud_action, "cloud_action",
+                              (self.batch_size, *self.cloud_action_shape))
         signal = None
         if signal_action is not None:
             if not self.signal_agents:
@@ -380,7 +386,8 @@ class BatchedMiVeCCEnv:
         if cloud_action is not None and scheme == "EEC":
             if self._cloud is None:
                 raise RuntimeError("step: cloud_action given but 'cloud' is not observed")
-            cloud_cmd = self._commands(self._cloud, cloud_action[:, None, :])
+            cloud_cmd = self._commands(
+                self._cloud, cloud_action.reshape(len(cloud_action), -1, self.k_cloud))
         if self.config.cloud_period > 1 and scheme == "EEC":
             view = sim.view
             cloud_cmd = self._cloud_hold.commands(
@@ -440,8 +447,9 @@ class BatchedMiVeCCEnv:
         self._last = BatchStep(
             edge_obs=None if edge is None else edge.obs,
             edge_mask=None if edge is None else edge.mask,
-            cloud_obs=None if cloud is None else cloud.obs[:, 0],
-            cloud_mask=None if cloud is None else cloud.mask[:, 0],
+            cloud_obs=None if cloud is None else cloud.obs.reshape(b, *self.cloud_graph_shape),
+            cloud_mask=None if cloud is None else cloud.mask.reshape(
+                b, *self.cloud_action_shape),
             edge_reward=edge_reward,
             cloud_reward=cloud_reward,
             edge_terms=edge_terms,

@@ -32,6 +32,7 @@ AccSource = Literal["front", "ego"]
 CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
 CloudView = Literal["window", "released"]
 CloudRewardPopulation = Literal["picks", "released"]
+CloudGraphs = Literal["network", "per_lane"]
 EdgeRewardScope = Literal["area", "decisions"]
 Model = Literal["paper", "released"]
 AccelRecord = Literal["applied", "commanded"]
@@ -174,6 +175,14 @@ class MiVeCCConfig:
         "vehicles the cloud may pick, and its velocity reward's scope: those with a conflict "
         "point of their lane still ahead (default), those before the last intersection centre "
         "of their lane (released code), or all (earlier behaviour: most picks on exit links)",
+    )
+    cloud_graphs: CloudGraphs = _choice(
+        "network", ("network", "per_lane"),
+        "the cloud's state graphs: one K x K graph of the network's k_cloud highest-DI "
+        "vehicles (released code and MODEL.md, default), or one per through lane of that "
+        "lane's k_cloud highest-DI vehicles, every graph acted on by the same policy (the "
+        "paper's Algorithm 1): the cloud then commands up to n_lanes * k_cloud vehicles "
+        "(docs/model.md, 'Cloud graphs')",
     )
     cloud_view: CloudView = _choice(
         "window", ("window", "released"),
@@ -473,6 +482,25 @@ class MiVeCCConfig:
     @property
     def n_intersections(self) -> int:
         return self.rows * self.cols
+
+    @property
+    def n_cloud_graphs(self) -> int:
+        """Number of cloud state graphs: 1, or one per through lane (2R + 2C) with
+        ``cloud_graphs="per_lane"``."""
+        return 2 * (self.rows + self.cols) if self.cloud_graphs == "per_lane" else 1
+
+    @property
+    def cloud_graph_shape(self) -> tuple[int, ...]:
+        """Shape of the cloud's observation: ``(K, K, 3)``, or ``(n_lanes, K, K, 3)`` with
+        ``cloud_graphs="per_lane"`` (K = ``k_cloud``)."""
+        k = self.k_cloud
+        return (k, k, 3) if self.n_cloud_graphs == 1 else (self.n_cloud_graphs, k, k, 3)
+
+    @property
+    def cloud_action_shape(self) -> tuple[int, ...]:
+        """Shape of the cloud's action [m/s^2] and mask: ``cloud_graph_shape`` without its
+        last two axes, one acceleration per graph column."""
+        return self.cloud_graph_shape[:-2]
 
     def replace(self, **overrides: Any) -> MiVeCCConfig:
         """A copy with some fields changed (validated like the constructor)."""

@@ -14,6 +14,9 @@ Observation spaces:
     decision vehicle ``j``, row 0 the vehicle itself, rows ``1..K-1`` its nearest reference
     vehicles; channels position, velocity, acceleration (see ``mivecc_env.sim.state_graph``).
     Which columns are real vehicles is ``infos[agent]["mask"]`` (float32, shape ``(K,)``).
+    With ``cloud_graphs="per_lane"`` (the paper's Algorithm 1) ``cloud_0`` observes one graph
+    per through lane: ``Box(-1, 1, (n_lanes, K_cloud, K_cloud, 3), float32)``, its mask and
+    action ``(n_lanes, K_cloud)``.
 
 Action spaces:
     ``Box(-a_max, a_max, (K,), float32)``: acceleration [m/s^2] of each column's vehicle.
@@ -152,22 +155,27 @@ class MiVeCCParallelEnv(ParallelEnv):
         self.agents: list[str] = []
         self._possible = frozenset(self.possible_agents)
         self._edge_index = {a: i for i, a in enumerate(self.edge_agents)}
-        self._k = {a: c.k_edge for a in self.edge_agents} | {CLOUD_AGENT: c.k_cloud}
+        # observation and action shapes: (K, K, 3) and (K,); the cloud's with
+        # cloud_graphs="per_lane": (n_lanes, K, K, 3) and (n_lanes, K)
+        graph_shapes = {a: (c.k_edge, c.k_edge, 3) for a in self.edge_agents} | {
+            CLOUD_AGENT: c.cloud_graph_shape}
         self._obs_spaces = {
-            a: spaces.Box(-1.0, 1.0, (k, k, 3), dtype=np.float32) for a, k in self._k.items()
+            a: spaces.Box(-1.0, 1.0, shape, dtype=np.float32)
+            for a, shape in graph_shapes.items()
         }
         self._act_spaces = {
-            a: spaces.Box(-c.a_max_mps2, c.a_max_mps2, (k,), dtype=np.float32)
-            for a, k in self._k.items()
+            a: spaces.Box(-c.a_max_mps2, c.a_max_mps2, shape[:-2], dtype=np.float32)
+            for a, shape in graph_shapes.items()
         }
         low, high = sig.observation_bounds(c)
         for a in self.signal_agents:
             self._obs_spaces[a] = spaces.Box(low, high, dtype=np.float32)
             self._act_spaces[a] = spaces.Discrete(sig.N_PHASES)
-        self.state_space = spaces.Box(-1.0, 1.0, (c.k_cloud, c.k_cloud, 3), dtype=np.float32)
+        self.state_space = spaces.Box(-1.0, 1.0, c.cloud_graph_shape, dtype=np.float32)
         # Accelerations are accepted up to this bound (float32 rounding of the box's edge).
         self._a_limit = c.a_max_mps2 + 1e-6
-        self._column_shapes = [(a, (self._k[a],)) for a in (*self.edge_agents, CLOUD_AGENT)]
+        self._column_shapes = [(a, self._act_spaces[a].shape)
+                               for a in (*self.edge_agents, CLOUD_AGENT)]
         self._n_edge_columns = n * c.k_edge
         self._last: BatchStep | None = None
 
@@ -186,13 +194,15 @@ class MiVeCCParallelEnv(ParallelEnv):
         return self.batched._cloud
 
     def observation_space(self, agent: str) -> spaces.Box:
-        """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call);
-        a signal agent's is ``Box(low, high, (15,), float32)`` (:mod:`..signal_agents`)."""
+        """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call;
+        ``cloud_0``'s: ``config.cloud_graph_shape``); a signal agent's is ``Box(low, high,
+        (15,), float32)`` (:mod:`..signal_agents`)."""
         return self._obs_spaces[agent]
 
     def action_space(self, agent: str) -> spaces.Space:
-        """``Box(-a_max, a_max, (K,), float32)`` of ``agent`` (the same object on every call);
-        ``Discrete(2)`` (the phase wanted green) for a signal agent."""
+        """``Box(-a_max, a_max, (K,), float32)`` of ``agent`` (the same object on every call;
+        ``cloud_0``'s: ``config.cloud_action_shape``); ``Discrete(2)`` (the phase wanted green)
+        for a signal agent."""
         return self._act_spaces[agent]
 
     @functools.cached_property
@@ -291,7 +301,7 @@ class MiVeCCParallelEnv(ParallelEnv):
                 edge_cols[0, [self._edge_index[a] for a in edges]] = acts
         if CLOUD_AGENT in actions:
             action = actions[CLOUD_AGENT]
-            cloud = self._in_box(action, (self.config.k_cloud,))
+            cloud = self._in_box(action, self.config.cloud_action_shape)
             if cloud is None:
                 cloud = self._check_action(CLOUD_AGENT, action)
             cloud_cols = cloud[None]
@@ -308,7 +318,7 @@ class MiVeCCParallelEnv(ParallelEnv):
             action = actions.get(agent)
             if type(action) is not np.ndarray or action.shape != shape:
                 return None
-            parts.append(action)
+            parts.append(action.reshape(-1))
         try:
             flat = np.concatenate(parts, dtype=np.float64)
         except (TypeError, ValueError):
@@ -318,7 +328,8 @@ class MiVeCCParallelEnv(ParallelEnv):
         if not (flat.min() >= -lim and flat.max() <= lim):
             return None
         n = self._n_edge_columns
-        return flat[:n].reshape(1, len(self.edge_agents), -1), flat[None, n:]
+        return (flat[:n].reshape(1, len(self.edge_agents), -1),
+                flat[n:].reshape(1, *self.config.cloud_action_shape))
 
     def _phases(self, actions: Mapping[str, Any]) -> np.ndarray | None:
         """(1, n_int) phases of the signal agents (-1 for those left out), ``None`` if none."""

@@ -331,7 +331,9 @@ def cloud_graphs(
     accel: FloatArray, batch: int, config: MiVeCCConfig,
     eligible: NDArray[np.bool_] | None = None,
 ) -> StateGraphs:
-    """Cloud-node graph, (B, 1, K_cloud, K_cloud, 3).
+    """Cloud-node graphs, (B, G, K_cloud, K_cloud, 3): G = 1, the network's K highest-DI
+    vehicles; or, with ``config.cloud_graphs == "per_lane"``, G = ``network.n_lanes``, graph
+    ``l`` holding the K highest-DI vehicles of through lane ``l`` (the paper's Algorithm 1).
 
     Args:
         di: (n,) density indicator of the view vehicles, or ``None``: the view's
@@ -344,14 +346,19 @@ def cloud_graphs(
     longest = float(network.lane_length.max())
     if eligible is None:
         eligible = cloud_population(network, view, config.cloud_pick_population)
+    n_graphs = network.n_lanes if config.cloud_graphs == "per_lane" else 1
+    # the selection groups by view.env: one group (graph) per environment, or per lane
+    group_view = view if n_graphs == 1 else dataclasses.replace(
+        view, env=view.env * n_graphs + view.lane)
     if di is None and graph_kernel.HAVE_NUMBA:
-        decision, env, column = graph_kernel.select_cloud_di(
-            view.env, eligible, view.own_point, view.point_run_start, view.point_run_end,
-            view.point_pos, config.di_n, longest, k)
+        decision, node, column = graph_kernel.select_cloud_di(
+            group_view.env, eligible, view.own_point, view.point_run_start,
+            view.point_run_end, view.point_pos, config.di_n, longest, k)
     else:
         if di is None:
             di = density_indicator(view, config.di_n)
-        decision, env, column = select_cloud_decisions(view, di, k, longest, eligible)
+        decision, node, column = select_cloud_decisions(group_view, di, k, longest, eligible)
     return build_graphs(
-        network, view, velocity, accel, decision, env, column, 1, batch, k, longest, config
+        network, view, velocity, accel, decision, node, column, n_graphs, batch, k, longest,
+        config,
     )
