@@ -219,3 +219,24 @@ def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
         single = evaluate_scheme("EE", 1, 1, 1500, 200, r["seed"], policies=policies,
                                  progress=False)
         assert _same(r, single) == []
+
+
+@pytest.mark.parametrize("cloud", ["constant", "shipped"])
+def test_per_lane_cloud_batch_equals_one_run_per_seed(cloud: str) -> None:
+    """The paper's per-lane cloud graphs (``cloud_graphs="per_lane"``): one policy call on every
+    lane graph of the batch gives each environment's single run."""
+    from mivecc_agents.policies import constant_policy
+
+    policies = pretrained_policies("released")
+    if cloud == "constant":
+        policies["cloud"] = constant_policy("cloud", 3.0, 60)
+    elif "cloud" not in policies:
+        pytest.skip("no shipped released cloud")
+    kw = {"model": "released", "cloud_graphs": "per_lane"}
+    batch = evaluate_batch("EEC", 2, 2, [900.0, 2100.0], 400, [1], policies=policies,
+                           progress=False, warn=False, **kw)
+    assert any(r["throughput"] > 0 for r in batch)
+    for r in batch:
+        single = evaluate_scheme("EEC", 2, 2, r["density"], 400, r["seed"], policies=policies,
+                                 progress=False, warn=False, **kw)
+        assert _same(r, single) == [], (cloud, r["density"])

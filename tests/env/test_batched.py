@@ -18,9 +18,10 @@ FIELDS = ("edge_obs", "edge_mask", "cloud_obs", "cloud_mask", "edge_reward", "cl
 
 
 def actions(rng: np.random.Generator, env: BatchedMiVeCCEnv) -> tuple[np.ndarray, np.ndarray]:
-    """Uniform actions of one environment: (n_edge, K_edge), (K_cloud,)."""
+    """Uniform actions of one environment: (n_edge, K_edge), ``cloud_action_shape``."""
     a = env.config.a_max_mps2
-    return (rng.uniform(-a, a, (env.n_edge, env.k_edge)), rng.uniform(-a, a, env.k_cloud))
+    return (rng.uniform(-a, a, (env.n_edge, env.k_edge)),
+            rng.uniform(-a, a, env.cloud_action_shape))
 
 
 def row(out: BatchStep, b: int) -> dict[str, np.ndarray]:
