@@ -14,6 +14,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import cloud_critic_check
+import cloud_pick_counts
 import cloud_reward_check
 import comparison
 import critic_check
@@ -137,6 +138,34 @@ def test_paper_table_cloud_period_sets_both_clouds(tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as exc:
         paper_table.main(["--cloud-period", "0", "--out", str(tmp_path)])
     assert exc.value.code == 2
+
+
+def test_paper_table_set_reaches_every_run_and_its_row(tmp_path: Path) -> None:
+    argv = ["--grids", "3x3", "--densities", "2100", "--schemes", "EEC+3", "--seeds", "0",
+            "--steps", "300", "--workers", "1"]
+    rows = {}
+    for graphs in ("network", "per_lane"):
+        out = paper_table.main([*argv, "--set", f"cloud_graphs={graphs}", "--out",
+                                str(tmp_path / graphs)])
+        with open(out / "paper_table.csv") as fh:
+            (rows[graphs],) = list(csv.DictReader(fh))
+        assert rows[graphs]["cloud_graphs"] == graphs
+        assert "--set cloud_graphs=" in (out / "paper_table.md").read_text().splitlines()[0]
+    # the per-lane constant cloud commands every vehicle: the runs differ
+    assert rows["network"]["mean_speed_mps"] != rows["per_lane"]["mean_speed_mps"]
+
+
+def test_cloud_pick_counts_per_lane_picks_the_whole_population(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    result = cloud_pick_counts.main(["--densities", "600", "2100", "--seeds", "0",
+                                     "--steps", "700", "--warmup", "500", "--every", "50"])
+    assert "| 2100 |" in capsys.readouterr().out
+    for r in result.values():
+        assert r["per_lane"] == r["population"] > 0
+        assert r["network"] <= min(60.0, r["population"])
+        assert r["lane_max"] <= 60
+    assert result[2100.0]["network"] == 60.0 < result[2100.0]["population"]
 
 
 def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
