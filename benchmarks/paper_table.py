@@ -250,7 +250,7 @@ GAIN_METRICS = (("avg_travel_velocity_mps", "average travel velocity"),
                 ("released_velocity_mps", "released-style velocity"))
 
 
-def plot(mean: dict, grid: str, path: Path) -> None:
+def plot(mean: dict, grid: str, path: Path, note: str = "") -> None:
     """Average travel velocity vs density per scheme (mean ± sd over seeds), with the upper
     bound."""
     from matplotlib.figure import Figure
@@ -267,14 +267,14 @@ def plot(mean: dict, grid: str, path: Path) -> None:
     ax.plot(ds, [mean[(schemes[0], d)]["ub"] for d in ds], "k--", label="upper bound")
     ax.set_xlabel("density [veh/lane/h]")
     ax.set_ylabel("average travel velocity [m/s]")
-    ax.set_title(f"Average travel velocity vs density, {grid} grid")
+    ax.set_title(f"Average travel velocity vs density, {grid} grid{note}")
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
 
-def plot_gains(rows: list[dict[str, Any]], grid: str, path: Path) -> bool:
+def plot_gains(rows: list[dict[str, Any]], grid: str, path: Path, note: str = "") -> bool:
     """Gains in per cent vs density, paired by seed: one row of panels per velocity metric
     (average travel velocity; the released-style velocity when the runs have it), left each
     scheme over MiVeCC-E, right EEC over EE; mean ± sd over seeds, every seed a dot, the
@@ -318,7 +318,7 @@ def plot_gains(rows: list[dict[str, Any]], grid: str, path: Path) -> bool:
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             legend.setdefault(label, handle)
     fig.legend(list(legend.values()), list(legend), loc="lower center", ncol=3, fontsize=9)
-    fig.suptitle("Paired by density and seed (dots: seeds)", fontsize=10)
+    fig.suptitle(f"Paired by density and seed (dots: seeds){note}", fontsize=10)
     fig.tight_layout(rect=(0, 1.0 / height, 1, 1))
     fig.savefig(path, dpi=110)
     return True
@@ -444,8 +444,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
         extra = near_miss_table(rows, grid)
         if extra:
             parts += [extra, ""]
-        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png")
-        plot_gains(rows, grid, args.out / f"gains_{grid}.png")
+        note = "".join(f", {key}={value}" for key, value in overrides.items())
+        plot(mean, grid, args.out / f"velocity_vs_density_{grid}.png", note)
+        plot_gains(rows, grid, args.out / f"gains_{grid}.png", note)
     (args.out / "paper_table.md").write_text("\n".join(parts))
     print("\n".join(parts))
     return args.out
