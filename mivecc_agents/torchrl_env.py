@@ -15,7 +15,7 @@ key                            shape                                        dtyp
 "truncated")``
 ``(g, "info", "mask")``        ``(B, n_g, K)``                              float32
 ``(g, "info", term)``          ``(B, n_g)``, ``term`` in ``REWARD_TERMS``   float32
-``(s, "info", summary key)``   ``(B, 1)`` (``summary_keys``)                 float32
+``(s, "info", summary key)``   ``(B, n_g)`` (``summary_keys``)               float32
 ``("cloud", "info",            ``(B, 1)``, only with ``cloud_period > 1``:    bool
 "decides")``                   the cloud action is used on the next step
 ``"done" | "terminated" |      ``(B, 1)``                                   bool
