@@ -179,10 +179,10 @@ class MiVeCCConfig:
     cloud_graphs: CloudGraphs = _choice(
         "network", ("network", "per_lane"),
         "the cloud's state graphs: one K x K graph of the network's k_cloud highest-DI "
-        "vehicles (released code and MODEL.md, default), or one per through lane of that "
-        "lane's k_cloud highest-DI vehicles, every graph acted on by the same policy (the "
-        "paper's Algorithm 1): the cloud then commands up to n_lanes * k_cloud vehicles "
-        "(docs/model.md, 'Cloud graphs')",
+        "vehicles (released code; default), or one per through lane of that lane's k_cloud "
+        "highest-DI vehicles, every graph acted on by the same policy (the paper's "
+        "Algorithm 1): the cloud then commands up to n_lanes * k_cloud vehicles "
+        "(docs/model.md, Coordinators)",
     )
     cloud_view: CloudView = _choice(
         "window", ("window", "released"),
