@@ -358,16 +358,18 @@ OWN_FIELDS = {"rows": "--grids", "cols": "--grids", "density_vplh": "--densities
               "cloud_period": "--cloud-period"}
 
 
-def config_overrides(items: Sequence[str], model: str) -> dict[str, Any]:
+def config_overrides(items: Sequence[str], model: str,
+                     own: dict[str, str] = OWN_FIELDS) -> dict[str, Any]:
     """``--set`` items as config overrides, checked now (one line and exit status 2 for a
-    malformed item, an unknown field, a value out of range or a field an option sets)."""
+    malformed item, an unknown field, a value out of range or a field an option sets: ``own``
+    maps those fields to their options)."""
     from mivecc_agents.cli import parse_set_items
 
     overrides = parse_set_items(items)
     for key in overrides:
         name = ALIASES.get(key, key)
-        if name in OWN_FIELDS:
-            raise cli_args.InputError(f"--set {key}: use {OWN_FIELDS[name]} instead")
+        if name in own:
+            raise cli_args.InputError(f"--set {key}: use {own[name]} instead")
     from_overrides(model=model, **overrides)  # ConfigError naming the field and its range
     return overrides
 

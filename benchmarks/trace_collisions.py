@@ -4,11 +4,14 @@ For every step with a collision event, prints the environment step, the intersec
 collided vehicle (``Simulator.last_events.collided_area``) and, for the vehicles that vanished
 without reaching their lane's end, their lane, position ``s`` [m], speed [m/s] and applied
 acceleration (``a`` of the table) [m/s^2] over the ``--history`` steps before the event (from
-``Simulator.vehicle_table``). Scheme ``E`` runs the rules alone; ``EE`` / ``EEC`` run the
-model's shipped policies (a learned cloud at its checkpoint's ``cloud_period``), as
-``mivecc evaluate`` does, or the checkpoints given with ``--edge`` / ``--cloud``, on one torch
-thread like ``mivecc evaluate`` and ``paper_table.py`` (``--threads``), so its events are the
-table's.
+``Simulator.vehicle_table``), and each such vehicle's distance past its lane's nearest
+intersection centre when it made the colliding move (``past centre``: negative before it; the
+released model's virtual lanes drop a vehicle more than ``section_control_end_m`` = 5 m past
+it). Scheme ``E`` runs the rules alone; ``EE`` / ``EEC`` run the model's shipped policies (a
+learned cloud at its checkpoint's ``cloud_period``), as ``mivecc evaluate`` does, or the
+checkpoints given with ``--edge`` / ``--cloud``, on one torch thread like ``mivecc evaluate``
+and ``paper_table.py`` (``--threads``), so its events are the table's. ``--set KEY=VALUE``
+changes config fields as ``paper_table.py --set`` does.
 
 Examples (E: the events of ``docs/results/released_study.md``, "Traced collisions"; EEC: the
 shipped released pair's one event on the paper table's seeds, ``docs/training.md``):
@@ -23,6 +26,7 @@ from collections import deque
 from typing import Any
 
 import numpy as np
+from paper_table import config_overrides
 
 from mivecc_agents.cli import DEFAULT_EVAL_THREADS, set_inference_threads
 from mivecc_agents.evaluation import evaluate_scheme
@@ -55,8 +59,11 @@ class CollisionTracer:
             < sim.network.lane_length[lanes]
         vids = before["vid"][idx][hit].tolist()
         areas = sim.last_events.collided_area.tolist()
+        past = past_centre_m(sim.network.lane_centres_s, before["lane"][idx][hit],
+                             before["s"][idx][hit])
         print(f"== step {step} (t = {(step + 1) * sim.config.dt_s:.1f} s): vehicles {vids}, "
-              f"intersections {areas}")
+              f"intersections {areas}, past centre [m] "
+              f"{[round(float(x), 2) for x in past]}")
         first = step - len(self.tables) + 1
         for k, table in enumerate(self.tables):
             cells = []
@@ -66,7 +73,22 @@ class CollisionTracer:
                              f"v{vid} lane {table['lane'][i[0]]} s={table['s'][i[0]]:7.2f} "
                              f"v={table['v'][i[0]]:5.2f} a={table['a'][i[0]]:5.2f}")
             print(f"  step {first + k:5d}  " + "  |  ".join(cells))
-        self.records.append({"step": step, "vehicles": vids, "areas": areas})
+        self.records.append({"step": step, "vehicles": vids, "areas": areas,
+                             "past_centre_m": past.tolist()})
+
+
+def past_centre_m(lane_centres_s: np.ndarray, lane: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Signed distance [m] of each position ``s`` on ``lane`` past the lane's nearest
+    intersection centre (negative before it); ``lane_centres_s`` is the network's
+    (n_lanes, n) table, padded with non-finite values."""
+    centres = lane_centres_s[lane]
+    offset = np.where(np.isfinite(centres), s[:, None] - centres, np.inf)
+    return offset[np.arange(len(s)), np.argmin(np.abs(offset), axis=1)]
+
+
+#: Config fields this script's own options set (not accepted by --set).
+OWN_FIELDS = {"rows": "--rows", "cols": "--cols", "density_vplh": "--density",
+              "scheme": "--scheme", "max_steps": "--steps", "model": "--model"}
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
@@ -84,6 +106,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    help="steps printed before an event")
     p.add_argument("--edge", default=None, help="edge checkpoint (default: the shipped one)")
     p.add_argument("--cloud", default=None, help="cloud checkpoint (default: the shipped one)")
+    p.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+", default=[],
+                   help="other config fields, e.g. cloud_graphs=per_lane (as paper_table.py)")
     p.add_argument("--threads", type=cli_args.count(1), default=DEFAULT_EVAL_THREADS,
                    help="torch threads of the policies (default %(default)s, as `mivecc "
                         "evaluate` and paper_table.py: another count rounds the networks "
@@ -91,6 +115,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     args = p.parse_args(argv)
     if args.scheme == "E" and (args.edge or args.cloud):
         p.error("--edge / --cloud: only with --scheme EE or EEC (E runs the rules alone)")
+    overrides = config_overrides(args.set_items, args.model, OWN_FIELDS)
     if args.scheme != "E":
         set_inference_threads(args.threads)
 
@@ -99,7 +124,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     tracer = CollisionTracer(args.history)
     result = evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                              args.seed, policies=policies, progress=False, model=args.model,
-                             step_hook=tracer)
+                             step_hook=tracer, **overrides)
     print(f"collision events: {int(result['collisions'])}")
     return tracer.records
 

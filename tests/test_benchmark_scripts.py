@@ -28,7 +28,7 @@ import table_diff
 import trace_collisions
 
 from mivecc_agents.policies import pretrained_policies
-from mivecc_env import mivecc_v0
+from mivecc_env import cli_args, mivecc_v0
 
 
 def test_rules_study_writes_its_table(tmp_path: Path) -> None:
@@ -309,6 +309,24 @@ def test_trace_collisions_finds_the_documented_event(capsys: pytest.CaptureFixtu
     assert [r["step"] for r in records] == [2378]
     assert sorted(records[0]["vehicles"]) == [1389, 1392] and 8 in records[0]["areas"]
     assert "v1389 lane 5 s= 152.32" in out and "collision events: 1" in out
+    # both were controlled, at most 5 m from their centres (their lanes 5 m off the centre)
+    assert all(abs(d) <= 10.0 for d in records[0]["past_centre_m"])
+
+
+def test_past_centre_is_signed_to_the_nearest_centre() -> None:
+    centres = np.array([[150.0, 300.0, np.inf], [150.0, np.inf, np.inf]])
+    got = trace_collisions.past_centre_m(centres, np.array([0, 0, 1, 0]),
+                                         np.array([154.0, 292.0, 400.0, 10.0]))
+    assert got.tolist() == [4.0, -8.0, 250.0, -140.0]
+
+
+def test_trace_collisions_takes_config_fields() -> None:
+    records = trace_collisions.main(["--scheme", "E", "--density", "2100", "--seed", "2",
+                                     "--steps", "2379", "--history", "0", "--set",
+                                     "section_control_end_m=10"])
+    assert [r["step"] for r in records] != [2378]  # another rule, another trajectory
+    with pytest.raises(cli_args.InputError, match="--set density: use --density instead"):
+        trace_collisions.main(["--set", "density=900"])
 
 
 def test_trace_collisions_refuses_a_checkpoint_for_the_rules_alone() -> None:
