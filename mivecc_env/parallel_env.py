@@ -301,7 +301,7 @@ class MiVeCCParallelEnv(ParallelEnv):
                 edge_cols[0, [self._edge_index[a] for a in edges]] = acts
         if CLOUD_AGENT in actions:
             action = actions[CLOUD_AGENT]
-            cloud = self._in_box(action, self.config.cloud_action_shape)
+            cloud = self._in_box(action, self._act_spaces[CLOUD_AGENT].shape)
             if cloud is None:
                 cloud = self._check_action(CLOUD_AGENT, action)
             cloud_cols = cloud[None]
@@ -329,7 +329,7 @@ class MiVeCCParallelEnv(ParallelEnv):
             return None
         n = self._n_edge_columns
         return (flat[:n].reshape(1, len(self.edge_agents), -1),
-                flat[n:].reshape(1, *self.config.cloud_action_shape))
+                flat[n:].reshape(1, *self._act_spaces[CLOUD_AGENT].shape))
 
     def _phases(self, actions: Mapping[str, Any]) -> np.ndarray | None:
         """(1, n_int) phases of the signal agents (-1 for those left out), ``None`` if none."""
