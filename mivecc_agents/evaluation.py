@@ -73,7 +73,7 @@ RESULT_KEYS: tuple[str, ...] = (
 #: Config fields reported with every result (the readings of ambiguous parts of the paper).
 CONFIG_READINGS: tuple[str, ...] = (
     "model", "control", "signal_controller", "end_rule", "same_lane_rule", "edge_sv_gate",
-    "sv_acc_source", "omega", "cloud_pick_population", "cloud_period",
+    "sv_acc_source", "omega", "cloud_pick_population", "cloud_graphs", "cloud_period",
 )
 
 ZERO_ACTION_WARNING = (
