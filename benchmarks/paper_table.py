@@ -45,7 +45,7 @@ from machine_info import describe, machine_info
 from tqdm import tqdm
 
 from mivecc_env import cli_args
-from mivecc_env.config import ALIASES, from_overrides
+from mivecc_env.config import from_overrides
 
 SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
 #: Constant-action ceilings: the scheme run, and the coordinator replaced by a constant +3 m/s^2
@@ -361,15 +361,11 @@ OWN_FIELDS = {"rows": "--grids", "cols": "--grids", "density_vplh": "--densities
 def config_overrides(items: Sequence[str], model: str,
                      own: dict[str, str] = OWN_FIELDS) -> dict[str, Any]:
     """``--set`` items as config overrides, checked now (one line and exit status 2 for a
-    malformed item, an unknown field, a value out of range or a field an option sets: ``own``
-    maps those fields to their options)."""
-    from mivecc_agents.cli import parse_set_items
+    malformed item, an unknown field, a value out of range or a field one of the script's
+    options sets: ``own`` maps those fields to their options)."""
+    from mivecc_agents.cli import set_overrides
 
-    overrides = parse_set_items(items)
-    for key in overrides:
-        name = ALIASES.get(key, key)
-        if name in own:
-            raise cli_args.InputError(f"--set {key}: use {own[name]} instead")
+    overrides = set_overrides(items, own)
     from_overrides(model=model, **overrides)  # ConfigError naming the field and its range
     return overrides
 

@@ -27,7 +27,7 @@ import json
 import math
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -115,13 +115,20 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                    "edge_sv_gate=-2 (`mivecc fields` lists them)")
 
 
-def config_overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
-    """Config overrides from :func:`add_config_arguments` options (not rows/cols/density)."""
-    overrides = parse_set_items(args.set_items)
+def set_overrides(items: Sequence[str] | None, dedicated: Mapping[str, str]) -> dict[str, Any]:
+    """``--set`` items as config overrides; a field that has its own option (``dedicated``:
+    field -> option) raises ConfigError naming that option."""
+    overrides = parse_set_items(items)
     for key in overrides:
         name = ALIASES.get(key, key)
-        if name in _DEDICATED:
-            raise ConfigError(f"{key}: use {_DEDICATED[name]} instead of --set")
+        if name in dedicated:
+            raise ConfigError(f"{key}: use {dedicated[name]} instead of --set")
+    return overrides
+
+
+def config_overrides_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """Config overrides from :func:`add_config_arguments` options (not rows/cols/density)."""
+    overrides = set_overrides(args.set_items, _DEDICATED)
     for name, value in (("end_rule", args.end_rule), ("same_lane_rule", args.same_lane_rule)):
         if value is None:
             continue

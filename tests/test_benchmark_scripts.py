@@ -28,7 +28,8 @@ import table_diff
 import trace_collisions
 
 from mivecc_agents.policies import pretrained_policies
-from mivecc_env import cli_args, mivecc_v0
+from mivecc_env import mivecc_v0
+from mivecc_env.config import ConfigError
 
 
 def test_rules_study_writes_its_table(tmp_path: Path) -> None:
@@ -325,7 +326,7 @@ def test_trace_collisions_takes_config_fields() -> None:
                                      "--steps", "2379", "--history", "0", "--set",
                                      "section_control_end_m=10"])
     assert [r["step"] for r in records] != [2378]  # another rule, another trajectory
-    with pytest.raises(cli_args.InputError, match="--set density: use --density instead"):
+    with pytest.raises(ConfigError, match="density: use --density instead of --set"):
         trace_collisions.main(["--set", "density=900"])
 
 

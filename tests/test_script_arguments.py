@@ -41,7 +41,7 @@ def _status(name: str, argv: list[str]) -> int:
      "cloud_graphs: must be one of ['network', 'per_lane'], got 'lanes'"),
     ("paper_table", ["--set", "k_cloud=1"], "k_cloud: must be an integer in [2, 512], got 1"),
     ("paper_table", ["--set", "colz=2"], "colz: unknown configuration field"),
-    ("paper_table", ["--set", "density=900"], "--set density: use --densities instead"),
+    ("paper_table", ["--set", "density=900"], "density: use --densities instead of --set"),
     ("paper_table", ["--set", "omega"], "--set: expected key=value, got 'omega'"),
     ("cloud_pick_counts", ["--warmup", "10", "--steps", "10"],
      "--warmup: must be below --steps (10), got 10"),

@@ -127,13 +127,18 @@ def test_parallel_env_spaces_actions_and_errors() -> None:
         env.step({"cloud_0": bad})
 
 
-def test_pettingzoo_parallel_api() -> None:
-    from pettingzoo.test import parallel_api_test
+def test_pettingzoo_parallel_and_aec_api() -> None:
+    from pettingzoo.test import api_test, parallel_api_test
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # image-like observation advice
         parallel_api_test(mivecc_v0.parallel_env(rows=1, cols=2, density=1800, k_cloud=8,
                                                  max_cycles=40, **PER_LANE), num_cycles=50)
+        parallel_api_test(mivecc_v0.parallel_env(rows=2, cols=1, density=1800, model="released",
+                                                 cloud_period=5, max_cycles=40, **PER_LANE),
+                          num_cycles=50)
+        api_test(mivecc_v0.env(rows=1, cols=1, density=1800, k_cloud=4, max_cycles=30,
+                               **PER_LANE), num_cycles=40)
 
 
 def test_torchrl_env_has_one_cloud_agent_per_lane() -> None:
