@@ -229,6 +229,17 @@ class MiVeCCConfig:
         },
     )
 
+    safety_shield: bool = _choice(
+        False, (False, True), "cap every vehicle's fused acceleration by safe following on its "
+        "virtual lane (own-lane leader and projected crossing vehicles, braking at a_max to "
+        "v_min); in neither the paper nor the released code (sim/rule_shield.py)"
+    )
+    shield_gap_m: float = _num(
+        3.0, 0.0, 100.0, "with safety_shield: the gap kept on the virtual lane; at least "
+        "sqrt(2) * vehicle_length_m (a crossing pair this far apart on the virtual lane is "
+        "that far apart / sqrt(2) in the plane)", lo_open=True,
+    )
+
     # --- the released code's behaviours (docs/model.md, divergence table) ----------------
     model: Model = _choice(
         "paper", ("paper", "released"),
@@ -448,6 +459,10 @@ class MiVeCCConfig:
              f"must be below segment_length_m / 4 = {half / 2}, got {self.lane_offset_m}")
         # Opposite-direction lanes run 2 * lane_offset_m apart; only same-lane and
         # conflict-point pairs are checked for collisions, so longer vehicles would overlap unseen.
+        need(not self.safety_shield
+             or self.shield_gap_m >= math.sqrt(2.0) * self.vehicle_length_m, "shield_gap_m",
+             f"must be at least sqrt(2) * vehicle_length_m = "
+             f"{math.sqrt(2.0) * self.vehicle_length_m:.4g}, got {self.shield_gap_m}")
         need(self.vehicle_length_m <= 2 * self.lane_offset_m, "vehicle_length_m",
              f"must be at most 2 * lane_offset_m = {2 * self.lane_offset_m} (vehicles on "
              f"opposite-direction lanes would overlap unseen), got {self.vehicle_length_m}")

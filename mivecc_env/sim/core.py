@@ -35,6 +35,7 @@ from mivecc_env.sim import (
     edge_selection,
     end_node,
     released_check,
+    rule_shield,
     sections,
     signals,
     step_kernels,
@@ -424,7 +425,7 @@ class Simulator:
         c = self.config
         if (c.control != "unsignalized" or self.controller is not None or c.header_rule
                 or c.sections or c.speed_reset or c.stale_action or c.same_lane_rule
-                or c.accel_record == "commanded"):
+                or c.accel_record == "commanded" or c.safety_shield):
             return None
         edge = None if edge_accel is None or c.scheme == "E" else edge_accel
         cloud = None if cloud_accel is None or c.scheme != "EEC" else cloud_accel
@@ -468,6 +469,8 @@ class Simulator:
         else:
             raw = None if raw_edge is None else np.asarray(raw_edge, dtype=bool)[view.env]
             accel = self._unsignalized_accel(view, s, v, edge_accel, cloud_accel, raw)
+            if c.safety_shield:
+                accel = rule_shield.apply_shield(accel, view, v, c)
         s_new, v_new, a_applied = end_node.bounded_motion(
             s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
         )

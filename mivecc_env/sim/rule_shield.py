@@ -1,0 +1,99 @@
+"""A safety shield for the MiVeCC rules: safe following on every virtual lane (``safety_shield``).
+
+Neither the paper nor the released code has this. The MiVeCC rules (end node, edge, cloud,
+the released code's overrides) are not collision-free under the strict check (``docs/model.md``,
+"The released model"); with ``safety_shield=True`` every vehicle's fused acceleration is capped
+so that it keeps a Gipps-style invariant towards every point ahead of it on its own virtual
+lane: its own-lane leader and each crossing vehicle projected onto the lane
+(``sim/virtual_lane.py``). Vehicles cannot stop under unsignalized control (velocity floor
+``v_min``), so the invariant of ``sim/safe_following.py`` is used in the frame that moves at
+``v_min``: there every vehicle's velocity is ``u = v - v_min >= 0`` with floor 0, and a vehicle
+that brakes at ``b = a_max`` reaches its *stopping point* ``s + u^2 / (2 b)`` of that frame.
+Gaps are frame-independent, so the bound is :func:`safe_following.safe_accel` with ``u``.
+
+Gap on a virtual lane: a crossing pair whose projected gap is ``g`` is at least ``g / sqrt 2``
+apart (the two distances to the conflict point ``d1``, ``d2`` give ``sqrt(d1^2 + d2^2) >=
+|d1 - d2| / sqrt 2``), so ``shield_gap_m >= sqrt 2 * vehicle_length_m`` (checked by the config)
+keeps every pair that holds the invariant apart by more than ``vehicle_length_m``.
+
+Every pair on a virtual lane is ordered the same way on both of its lanes (by signed distance
+to the shared conflict point), so exactly one of the two, the follower, keeps the invariant.
+Once it holds, braking at ``b`` keeps it against any leader that brakes at most at ``b``. It can
+be violated where the shield cannot act: when a crossing vehicle first comes into view
+(``projection_window_m`` before the conflict point) already too close, or when the released
+code's speed reset lifts a velocity to ``v_max`` in one step. The bound is then below ``-b`` and
+the vehicle brakes at ``b``; whether that suffices is measured, not assumed
+(``docs/model.md``, "A safety shield").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import safe_following
+from mivecc_env.sim.virtual_lane import VirtualLaneView
+
+FloatArray = NDArray[np.float64]
+
+
+def horizon_m(config: MiVeCCConfig) -> float:
+    """How far ahead [m] a point can constrain a vehicle: beyond it the invariant holds for any
+    velocities (largest stopping-point lead ``(v_max - v_min)^2 / (2 a_max)``, one step at
+    ``v_max`` and the gap)."""
+    u_max = config.v_max_mps - config.v_min_mps
+    return (u_max * u_max / (2.0 * config.a_max_mps2) + config.v_max_mps * config.dt_s
+            + config.shield_gap_m)
+
+
+def shield_cap(view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig) -> FloatArray:
+    """(n,) largest acceleration [m/s^2] each view vehicle may take, ``inf`` where unconstrained.
+
+    Args:
+        view: this step's virtual-lane view.
+        v: (n,) velocities [m/s] in view order.
+        config: ``v_min_mps``, ``a_max_mps2``, ``dt_s``, ``shield_gap_m``.
+
+    The bound is the minimum of :func:`safe_following.safe_accel` over every point ahead of the
+    vehicle on its own virtual lane within :func:`horizon_m`; it is below ``-a_max`` where the
+    invariant is already violated (the caller brakes at ``a_max`` there). The scan goes one
+    point further along every lane per pass and stops when no vehicle has a point within the
+    horizon left: a handful of numpy passes per step, no loop over vehicles.
+    """
+    n = view.n_vehicles
+    cap = np.full(n, np.inf)
+    if n == 0:
+        return cap
+    b, dt, gap = config.a_max_mps2, config.dt_s, config.shield_gap_m
+    reach = horizon_m(config)
+    u_all = np.maximum(v - config.v_min_mps, 0.0)
+    own = view.own_point
+    run_end = view.point_run_end[own]
+    rows = np.arange(n)
+    k = 1
+    while rows.size:
+        idx = own[rows] + k
+        inside = idx < run_end[rows]
+        rows, idx = rows[inside], idx[inside]
+        ahead = view.point_pos[idx] - view.s[rows]
+        near = ahead <= reach
+        rows, idx = rows[near], idx[near]
+        if rows.size == 0:
+            break
+        bound = safe_following.safe_accel(
+            view.s[rows], u_all[rows], view.point_pos[idx], u_all[view.point_vehicle[idx]],
+            gap, b, dt,
+        )
+        cap[rows] = np.minimum(cap[rows], bound)
+        k += 1
+    return cap
+
+
+def apply_shield(
+    accel: FloatArray, view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig
+) -> FloatArray:
+    """The fused accelerations [m/s^2] capped by :func:`shield_cap`, never below ``-a_max``
+    through the cap (a vehicle that cannot keep the invariant brakes at ``a_max``)."""
+    cap = np.maximum(shield_cap(view, v, config), -config.a_max_mps2)
+    return np.minimum(accel, cap)
