@@ -74,6 +74,7 @@ RESULT_KEYS: tuple[str, ...] = (
 CONFIG_READINGS: tuple[str, ...] = (
     "model", "control", "signal_controller", "end_rule", "same_lane_rule", "edge_sv_gate",
     "sv_acc_source", "omega", "cloud_pick_population", "cloud_graphs", "cloud_period",
+    "safety_shield",
 )
 
 ZERO_ACTION_WARNING = (

@@ -1,0 +1,102 @@
+"""The safety shield (``safety_shield``): safe following on every virtual lane, v_min frame."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from mivecc_env.config import ConfigError, MiVeCCConfig
+from mivecc_env.sim import rule_shield
+from mivecc_env.sim.core import Simulator
+from tests.sim._scenario import EAST, SOUTH, hand_sim, place
+
+SHIELD = MiVeCCConfig(rows=1, cols=1, safety_shield=True)
+
+
+def caps(vehicles: list[tuple[int, float, float]]) -> np.ndarray:
+    sim = hand_sim(SHIELD)
+    place(sim, vehicles)
+    view = sim.view
+    return rule_shield.shield_cap(view, sim.v.ravel()[view.vehicle], sim.config)
+
+
+def test_own_lane_cap_is_the_stopping_point_bound_in_the_vmin_frame() -> None:
+    # Follower at 48 m, 13 m/s (u = 7 above v_min = 6); leader at 60 m at v_min (u = 0, it
+    # cannot slow down further). The largest a keeps s1 + u1^2 / (2 * 3) = 60 - 3 with
+    # u1 = 7 + 0.1 a and s1 = 48 + (7 + u1) / 2 * 0.1:
+    # u1^2 / 6 + 0.05 u1 - 8.65 = 0.
+    u1 = (-0.05 + math.sqrt(0.05**2 + 4 * 8.65 / 6)) / (2 / 6)
+    expected = (u1 - 7.0) / 0.1
+    got = caps([(EAST, 48.0, 13.0), (EAST, 60.0, 6.0)])
+    assert got[0] == pytest.approx(expected, rel=1e-9)
+    assert 0.5 < got[0] < 0.6
+    assert got[1] == np.inf  # nothing ahead of the leader
+
+
+def test_far_leader_does_not_constrain() -> None:
+    # Beyond the horizon ((13 - 6)^2 / 6 + 1.3 + 3 = 12.47 m) nothing can bind.
+    assert rule_shield.horizon_m(SHIELD) == pytest.approx(49 / 6 + 1.3 + 3.0)
+    assert caps([(EAST, 40.0, 13.0), (EAST, 53.0, 6.0)])[0] == np.inf
+
+
+def test_a_projected_crossing_vehicle_constrains_only_its_follower() -> None:
+    # 1x1: east and south lanes cross at s_E = 145, s_S = 155. East is 15 m before the point,
+    # south 13 m before: projected onto the east lane 2 m ahead of the east vehicle, closer than
+    # the 3 m gap, so east must brake; on the south lane east is 2 m behind: south is free.
+    got = caps([(EAST, 130.0, 10.0), (SOUTH, 142.0, 10.0)])
+    assert got[0] < -SHIELD.a_max_mps2
+    assert got[1] == np.inf
+    alone = caps([(EAST, 130.0, 10.0)])
+    assert alone[0] == np.inf
+
+
+def test_shield_brakes_at_a_max_where_the_invariant_is_broken() -> None:
+    sim = hand_sim(SHIELD)
+    place(sim, [(EAST, 130.0, 10.0), (SOUTH, 142.0, 10.0)])
+    view = sim.view
+    v = sim.v.ravel()[view.vehicle]
+    accel = rule_shield.apply_shield(np.array([2.0, 2.0]), view, v, sim.config)
+    assert accel.tolist() == [-SHIELD.a_max_mps2, 2.0]
+
+
+def test_gap_must_cover_a_crossing_pair() -> None:
+    with pytest.raises(ConfigError, match=r"shield_gap_m: must be at least sqrt\(2\)"):
+        MiVeCCConfig(safety_shield=True, shield_gap_m=2.5)
+    MiVeCCConfig(shield_gap_m=2.5)  # only checked when the shield is on
+    MiVeCCConfig(vehicle_length_m=3.0)
+
+
+def plus3_collisions(model: str, shield: bool, steps: int) -> int:
+    """Collided vehicles of a 3x3 run at 2100 veh/lane/h whose edges command +3 m/s^2 to every
+    vehicle on every step (more aggressive than the EE+3 ceiling)."""
+    config = MiVeCCConfig(rows=3, cols=3, density_vplh=2100, scheme="EE", safety_shield=shield,
+                          model=model)
+    sim = Simulator(config, seed=0)
+    for _ in range(steps):
+        sim.step(edge_accel=np.full(sim.active.shape, 3.0))
+    return int(sim.collided.sum())
+
+
+@pytest.mark.parametrize("model", ["paper", "released"])
+def test_shield_removes_the_collisions_of_an_aggressive_edge(model: str) -> None:
+    assert plus3_collisions(model, shield=False, steps=1200) > 0
+    assert plus3_collisions(model, shield=True, steps=1200) == 0
+
+
+def test_batch_equals_single_runs() -> None:
+    config = MiVeCCConfig(rows=2, cols=2, density_vplh=2100, scheme="EE", safety_shield=True,
+                          model="released")
+    batch = Simulator(config, batch_size=2, seed=[3, 4])
+    singles = [Simulator(config, seed=s) for s in (3, 4)]
+    for _ in range(400):
+        batch.step(edge_accel=np.full(batch.active.shape, 3.0))
+        for sim in singles:
+            sim.step(edge_accel=np.full(sim.active.shape, 3.0))
+    for k, sim in enumerate(singles):
+        mine, theirs = sim.vehicle_table(0), batch.vehicle_table(k)
+        assert mine["vid"].size > 20
+        order_mine, order_theirs = np.argsort(mine["vid"]), np.argsort(theirs["vid"])
+        for name in ("vid", "s", "v", "a"):
+            np.testing.assert_array_equal(theirs[name][order_theirs], mine[name][order_mine])
