@@ -19,11 +19,12 @@ keeps every pair that holds the invariant apart by more than ``vehicle_length_m`
 Every pair on a virtual lane is ordered the same way on both of its lanes (by signed distance
 to the shared conflict point), so exactly one of the two, the follower, keeps the invariant.
 Once it holds, braking at ``b`` keeps it against any leader that brakes at most at ``b``. It can
-be violated where the shield cannot act: when a crossing vehicle first comes into view
+be violated where braking cannot help: when a crossing vehicle first comes into view
 (``projection_window_m`` before the conflict point) already too close, or when the released
-code's speed reset lifts a velocity to ``v_max`` in one step. The bound is then below ``-b`` and
-the vehicle brakes at ``b``; whether that suffices is measured, not assumed
-(``docs/model.md``, "A safety shield").
+code's speed reset lifts a velocity to ``v_max`` in one step. The follower then brakes at ``b``
+and the vehicle ahead of it accelerates at ``a_max`` (as far as its own bound allows), which
+restores the gap even when both are at ``v_min``, where braking alone cannot. Whether that
+always suffices is measured, not assumed (``docs/model.md``, "A safety shield").
 """
 
 from __future__ import annotations
@@ -47,8 +48,11 @@ def horizon_m(config: MiVeCCConfig) -> float:
             + config.shield_gap_m)
 
 
-def shield_cap(view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig) -> FloatArray:
-    """(n,) largest acceleration [m/s^2] each view vehicle may take, ``inf`` where unconstrained.
+def shield_bounds(
+    view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig
+) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Per view vehicle: the largest acceleration it may take [m/s^2] (``inf`` where
+    unconstrained) and whether a follower needs it to pull away.
 
     Args:
         view: this step's virtual-lane view.
@@ -57,14 +61,17 @@ def shield_cap(view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig) -> Fl
 
     The bound is the minimum of :func:`safe_following.safe_accel` over every point ahead of the
     vehicle on its own virtual lane within :func:`horizon_m`; it is below ``-a_max`` where the
-    invariant is already violated (the caller brakes at ``a_max`` there). The scan goes one
-    point further along every lane per pass and stops when no vehicle has a point within the
-    horizon left: a handful of numpy passes per step, no loop over vehicles.
+    invariant is already violated. A vehicle is *pulled* when it is the point ahead in such a
+    violated pair: its follower alone cannot restore the gap (both at ``v_min``, for instance,
+    neither can slow down), so the leader accelerates. The scan goes one point further along
+    every lane per pass and stops when no vehicle has a point within the horizon left: a
+    handful of numpy passes per step, no loop over vehicles.
     """
     n = view.n_vehicles
     cap = np.full(n, np.inf)
+    pulled = np.zeros(n, dtype=bool)
     if n == 0:
-        return cap
+        return cap, pulled
     b, dt, gap = config.a_max_mps2, config.dt_s, config.shield_gap_m
     reach = horizon_m(config)
     u_all = np.maximum(v - config.v_min_mps, 0.0)
@@ -81,19 +88,22 @@ def shield_cap(view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig) -> Fl
         rows, idx = rows[near], idx[near]
         if rows.size == 0:
             break
+        lead = view.point_vehicle[idx]
         bound = safe_following.safe_accel(
-            view.s[rows], u_all[rows], view.point_pos[idx], u_all[view.point_vehicle[idx]],
-            gap, b, dt,
+            view.s[rows], u_all[rows], view.point_pos[idx], u_all[lead], gap, b, dt,
         )
         cap[rows] = np.minimum(cap[rows], bound)
+        pulled[lead[bound < -b]] = True
         k += 1
-    return cap
+    return cap, pulled
 
 
 def apply_shield(
     accel: FloatArray, view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig
 ) -> FloatArray:
-    """The fused accelerations [m/s^2] capped by :func:`shield_cap`, never below ``-a_max``
-    through the cap (a vehicle that cannot keep the invariant brakes at ``a_max``)."""
-    cap = np.maximum(shield_cap(view, v, config), -config.a_max_mps2)
-    return np.minimum(accel, cap)
+    """The fused accelerations [m/s^2] under the shield: a pulled vehicle takes ``+a_max``, then
+    every vehicle is capped by its bound, never below ``-a_max`` through the cap (a vehicle that
+    cannot keep the invariant brakes at ``a_max``); see :func:`shield_bounds`."""
+    cap, pulled = shield_bounds(view, v, config)
+    wanted = np.where(pulled, config.a_max_mps2, accel)
+    return np.minimum(wanted, np.maximum(cap, -config.a_max_mps2))

@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from mivecc_agents.evaluation import evaluate_scheme
 from mivecc_env.config import ConfigError, MiVeCCConfig
 from mivecc_env.sim import rule_shield
 from mivecc_env.sim.core import Simulator
-from tests.sim._scenario import EAST, SOUTH, hand_sim, place
+from tests.sim._scenario import EAST, SOUTH, WEST, hand_sim, place
 
 SHIELD = MiVeCCConfig(rows=1, cols=1, safety_shield=True)
 
@@ -19,7 +20,7 @@ def caps(vehicles: list[tuple[int, float, float]]) -> np.ndarray:
     sim = hand_sim(SHIELD)
     place(sim, vehicles)
     view = sim.view
-    return rule_shield.shield_cap(view, sim.v.ravel()[view.vehicle], sim.config)
+    return rule_shield.shield_bounds(view, sim.v.ravel()[view.vehicle], sim.config)[0]
 
 
 def test_own_lane_cap_is_the_stopping_point_bound_in_the_vmin_frame() -> None:
@@ -52,13 +53,40 @@ def test_a_projected_crossing_vehicle_constrains_only_its_follower() -> None:
     assert alone[0] == np.inf
 
 
-def test_shield_brakes_at_a_max_where_the_invariant_is_broken() -> None:
+@pytest.mark.parametrize("speed", [10.0, 6.0])  # 6 m/s: both at v_min, neither can slow down
+def test_a_broken_pair_brakes_the_follower_and_pulls_the_leader(speed: float) -> None:
     sim = hand_sim(SHIELD)
-    place(sim, [(EAST, 130.0, 10.0), (SOUTH, 142.0, 10.0)])
+    place(sim, [(EAST, 130.0, speed), (SOUTH, 142.0, speed), (WEST, 60.0, speed)])
     view = sim.view
     v = sim.v.ravel()[view.vehicle]
-    accel = rule_shield.apply_shield(np.array([2.0, 2.0]), view, v, sim.config)
-    assert accel.tolist() == [-SHIELD.a_max_mps2, 2.0]
+    cap, pulled = rule_shield.shield_bounds(view, v, sim.config)
+    assert pulled.tolist() == [False, True, False]
+    assert cap[0] < -SHIELD.a_max_mps2 and cap[1] == np.inf
+    accel = rule_shield.apply_shield(np.array([2.0, -3.0, -1.0]), view, v, sim.config)
+    assert accel.tolist() == [-SHIELD.a_max_mps2, SHIELD.a_max_mps2, -1.0]
+
+
+def test_a_pulled_vehicle_still_keeps_its_own_gap() -> None:
+    # South is pulled by east but has its own leader 6 m ahead at v_min: its own bound wins
+    # (it may not close on its leader).
+    sim = hand_sim(SHIELD)
+    place(sim, [(EAST, 130.0, 10.0), (SOUTH, 142.0, 10.0), (SOUTH, 148.0, 6.0)])
+    view = sim.view
+    v = sim.v.ravel()[view.vehicle]
+    cap, pulled = rule_shield.shield_bounds(view, v, sim.config)
+    assert pulled[1] and -SHIELD.a_max_mps2 < cap[1] < SHIELD.a_max_mps2
+    accel = rule_shield.apply_shield(np.zeros(3), view, v, sim.config)
+    assert accel[1] == cap[1]
+
+
+def test_released_rules_at_v_min_no_longer_collide() -> None:
+    # Without the pull, two vehicles of this episode travelled 40 steps side by side at the
+    # released model's v_min = 5 m/s, 2 m apart on a virtual lane, and collided at step 2743
+    # (MiVeCC-E, 3x3, 2100 veh/lane/h, seed 3; benchmarks/trace_collisions.py).
+    result = evaluate_scheme("E", 3, 3, 2100, 2800, 3, progress=False, model="released",
+                             safety_shield=True)
+    assert result["collisions"] == 0
+    assert result["min_distance_m"] > 2.0
 
 
 def test_gap_must_cover_a_crossing_pair() -> None:
