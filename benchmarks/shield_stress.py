@@ -6,14 +6,16 @@ no policy would choose, with and without ``safety_shield``, for each model:
 * ``random``: every vehicle gets an edge and a cloud action drawn uniformly from [-3, 3] m/s^2
   on every step (a generator owned by this script, seeded by ``--action-seed``);
 * ``plus3``: +3 m/s^2 from edge and cloud for every vehicle on every step (the most aggressive
-  constant; the EE+3 / EEC+3 ceilings command only the picked vehicles).
+  constant; the EE+3 / EEC+3 ceilings command only the picked vehicles);
+* ``raw``: ``random``, with the edge action executed unmodified (no rule, no fusion) on every
+  other step, as the released trainer explores (``raw_edge``).
 
 Actions go to every vehicle (every slot), not only to the edges' and the cloud's picks, so the
 rules are overridden far more often than by any policy. Prints, per model, actions and shield:
 the vehicle-steps simulated, the strict collision events (two vehicles closer than
 ``vehicle_length_m``), the smallest centre distance and the released-style velocity.
 
-Usage (3x3, both models, 7 densities x 3 seeds x 3000 steps; about 6 min here):
+Usage (3x3, both models, 7 densities x 3 seeds x 3000 steps; about 1.5 min here):
     python benchmarks/shield_stress.py
 """
 
@@ -31,7 +33,7 @@ from mivecc_env.metrics import batch_summary
 from mivecc_env.sim.core import Simulator
 
 DENSITIES = (300.0, 600.0, 900.0, 1200.0, 1500.0, 1800.0, 2100.0)
-ACTIONS = ("random", "plus3")
+ACTIONS = ("random", "plus3", "raw")
 
 
 def stress_run(
@@ -47,13 +49,16 @@ def stress_run(
     rng = np.random.default_rng(action_seed)
     a_max = config.a_max_mps2
     label = f"{model} {actions} shield={'on' if shield else 'off'}"
-    for _ in tqdm(range(steps), desc=label, unit="step", file=sys.stderr, mininterval=1.0):
+    raw = None
+    for t in tqdm(range(steps), desc=label, unit="step", file=sys.stderr, mininterval=1.0):
         shape = sim.active.shape  # grows with the network: size the actions every step
-        if actions == "random":
-            edge, cloud = rng.uniform(-a_max, a_max, shape), rng.uniform(-a_max, a_max, shape)
-        else:
+        if actions == "plus3":
             edge = cloud = np.full(shape, a_max)
-        sim.step(edge_accel=edge, cloud_accel=cloud)
+        else:
+            edge, cloud = rng.uniform(-a_max, a_max, shape), rng.uniform(-a_max, a_max, shape)
+        if actions == "raw":
+            raw = np.full(sim.batch_size, t % 2 == 0)
+        sim.step(edge_accel=edge, cloud_accel=cloud, raw_edge=raw)
     summary = batch_summary(sim)
     return {
         "vehicle_steps": float(sim.vehicle_steps.sum()),

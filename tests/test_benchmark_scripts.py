@@ -24,6 +24,7 @@ import paper_table
 import released_reference
 import released_study
 import rules_study
+import shield_stress
 import table_diff
 import trace_collisions
 
@@ -167,6 +168,18 @@ def test_cloud_pick_counts_per_lane_picks_the_whole_population(
         assert r["network"] <= min(60.0, r["population"])
         assert r["lane_max"] <= 60
     assert result[2100.0]["network"] == 60.0 < result[2100.0]["population"]
+
+
+def test_shield_stress_counts_the_unshielded_collisions_only(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    result = shield_stress.main(["--densities", "2100", "--seeds", "0", "--steps", "1200",
+                                 "--models", "released", "--actions", "plus3"])
+    assert "| released | plus3 | on |" in capsys.readouterr().out
+    (off,), (on,) = ([r for m, a, s, r in result if s is shield] for shield in (False, True))
+    assert off["collisions"] > 0 == on["collisions"]
+    assert on["min_distance_m"] > 2.0 > off["min_distance_m"]
+    assert on["vehicle_steps"] > 0
 
 
 def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:

@@ -34,7 +34,12 @@ def _table(model: str) -> dict[tuple[str, int], dict[str, float]]:
     """(scheme, density) -> seed means of the 3x3 runs of one model's committed table, as
     ``paper_table.summarise`` computes them, plus the released-style velocity ``rv``."""
     name = "paper_table" if model == "default" else "paper_table_released"
-    rows = read_runs_csv(ROOT / "docs" / "results" / name / "paper_table.csv")
+    return _cells(ROOT / "docs" / "results" / name / "paper_table.csv")
+
+
+def _cells(path: Path) -> dict[tuple[str, int], dict[str, float]]:
+    """:func:`_table` of any paper_table CSV."""
+    rows = read_runs_csv(path)
     cells = summarise(rows, "3x3")[1]
     for (scheme, d), cell in cells.items():
         cell["rv"] = float(np.mean([x["released_velocity_mps"] for x in rows if (
@@ -115,3 +120,20 @@ def test_released_model_edge_against_its_ceiling(released):
     assert f"{100 * min(share):.0f}-{100 * max(share):.0f} % of the constant +3 edge" in text
     events = [released[("EE+3", d)]["events"] for d in DENSITIES]
     assert f"collides {min(events)}-{max(events)} times per cell" in text
+
+
+SHIELD = ROOT / "docs" / "results" / "training" / "session26"
+
+
+def test_shield_paragraph(default, released):
+    """The README's safety-shield paragraph: no strict event in any shielded cell, and the
+    velocity each scheme loses at 2100 veh/lane/h against the committed tables."""
+    text = README.replace("\n", " ")
+    for name in ("released", "released_s3to7", "default", "default_s3to7"):
+        cells = _cells(SHIELD / f"pt_shield_{name}" / "paper_table.csv")
+        assert {s for s, _ in cells} == {"E", "EE", "EEC", "EE+3", "EEC+3"}
+        assert sum(c["events"] for c in cells.values()) == 0, name
+    for model, base, key in (("released", released, "rv"), ("default", default, "v")):
+        cells = _cells(SHIELD / f"pt_shield_{model}" / "paper_table.csv")
+        loss = {s: 100 * (1 - cells[(s, 2100)][key] / base[(s, 2100)][key]) for s in ("E", "EEC")}
+        assert f"{model} model's E loses {loss['E']:.1f} %, EEC {loss['EEC']:.1f} %" in text

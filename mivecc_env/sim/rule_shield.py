@@ -63,13 +63,16 @@ def shield_bounds(
     vehicle on its own virtual lane within :func:`horizon_m`; it is below ``-a_max`` where the
     invariant is already violated. A vehicle is *pulled* when it is the point ahead in such a
     violated pair: its follower alone cannot restore the gap (both at ``v_min``, for instance,
-    neither can slow down), so the leader accelerates. The scan goes one point further along
+    neither can slow down), so the leader accelerates; where its own bound keeps it from
+    accelerating, the vehicle that gives that bound is pulled too, along the chain. The scan
+    goes one point further along
     every lane per pass and stops when no vehicle has a point within the horizon left: a
     handful of numpy passes per step, no loop over vehicles.
     """
     n = view.n_vehicles
     cap = np.full(n, np.inf)
     pulled = np.zeros(n, dtype=bool)
+    binder = np.full(n, -1)  # the vehicle whose point gives each vehicle's bound
     if n == 0:
         return cap, pulled
     b, dt, gap = config.a_max_mps2, config.dt_s, config.shield_gap_m
@@ -92,9 +95,21 @@ def shield_bounds(
         bound = safe_following.safe_accel(
             view.s[rows], u_all[rows], view.point_pos[idx], u_all[lead], gap, b, dt,
         )
-        cap[rows] = np.minimum(cap[rows], bound)
+        tighter = bound < cap[rows]
+        cap[rows[tighter]] = bound[tighter]
+        binder[rows[tighter]] = lead[tighter]
         pulled[lead[bound < -b]] = True
         k += 1
+    # A pulled vehicle that its own bound keeps from accelerating pulls the vehicle that binds
+    # it, and so on along the chain (each vehicle at most once).
+    stuck = pulled & (cap < b) & (binder >= 0)
+    while stuck.any():
+        ahead = binder[stuck]
+        fresh = ahead[~pulled[ahead]]
+        pulled[fresh] = True
+        stuck = np.zeros(n, dtype=bool)
+        stuck[fresh] = True
+        stuck &= (cap < b) & (binder >= 0)
     return cap, pulled
 
 
