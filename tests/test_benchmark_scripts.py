@@ -182,6 +182,16 @@ def test_shield_stress_counts_the_unshielded_collisions_only(
     assert on["vehicle_steps"] > 0
 
 
+def test_shield_stress_raw_actions_collide_only_without_the_shield() -> None:
+    # the released trainer's exploration: random edge actions executed unmodified every other step
+    result = shield_stress.main(["--grid", "1x1", "--densities", "2100", "--seeds", "0",
+                                 "--steps", "1500", "--actions", "raw"])
+    for model in ("paper", "released"):
+        (off,), (on,) = ([r for m, a, s, r in result if m == model and s is shield]
+                         for shield in (False, True))
+        assert off["collisions"] > 0 == on["collisions"], model
+
+
 def test_cloud_critic_check_probes_the_shipped_critic(tmp_path: Path) -> None:
     rows = cloud_critic_check.main(["--model", "released", "--rows", "1", "--cols", "1",
                                     "--densities", "1500", "--seeds", "0", "1", "--steps", "300",

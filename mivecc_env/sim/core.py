@@ -470,7 +470,7 @@ class Simulator:
             raw = None if raw_edge is None else np.asarray(raw_edge, dtype=bool)[view.env]
             accel = self._unsignalized_accel(view, s, v, edge_accel, cloud_accel, raw)
             if c.safety_shield:
-                accel = rule_shield.apply_shield(accel, view, v, c)
+                accel = rule_shield.apply_shield(accel, view, v, self.vid.ravel()[flat], c)
         s_new, v_new, a_applied = end_node.bounded_motion(
             s, v, accel, c.velocity_floor_mps, c.v_max_mps, c.dt_s
         )

@@ -34,9 +34,13 @@ from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import safe_following
-from mivecc_env.sim.virtual_lane import VirtualLaneView
+from mivecc_env.sim.virtual_lane import POSITION_RESOLUTION_M, VirtualLaneView
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Two points closer than this on a virtual lane are a tie [m] (the view's sort resolution).
+TIE_M = POSITION_RESOLUTION_M
 
 
 def horizon_m(config: MiVeCCConfig) -> float:
@@ -49,7 +53,7 @@ def horizon_m(config: MiVeCCConfig) -> float:
 
 
 def shield_bounds(
-    view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig
+    view: VirtualLaneView, v: FloatArray, rank: IntArray, config: MiVeCCConfig
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
     """Per view vehicle: the largest acceleration it may take [m/s^2] (``inf`` where
     unconstrained) and whether a follower needs it to pull away.
@@ -57,6 +61,9 @@ def shield_bounds(
     Args:
         view: this step's virtual-lane view.
         v: (n,) velocities [m/s] in view order.
+        rank: (n,) distinct keys of the vehicles of one environment (vehicle ids): of two
+            points at the same position (within the view's sort resolution) the one with the
+            larger key is ahead, on both virtual lanes of a crossing pair.
         config: ``v_min_mps``, ``a_max_mps2``, ``dt_s``, ``shield_gap_m``.
 
     The bound is the minimum of :func:`safe_following.safe_accel` over every point ahead of the
@@ -65,9 +72,8 @@ def shield_bounds(
     violated pair: its follower alone cannot restore the gap (both at ``v_min``, for instance,
     neither can slow down), so the leader accelerates; where its own bound keeps it from
     accelerating, the vehicle that gives that bound is pulled too, along the chain. The scan
-    goes one point further along
-    every lane per pass and stops when no vehicle has a point within the horizon left: a
-    handful of numpy passes per step, no loop over vehicles.
+    goes one point further along every lane per pass and stops when no vehicle has a point
+    within the horizon left: a handful of numpy passes per step, no loop over vehicles.
     """
     n = view.n_vehicles
     cap = np.full(n, np.inf)
@@ -79,19 +85,11 @@ def shield_bounds(
     reach = horizon_m(config)
     u_all = np.maximum(v - config.v_min_mps, 0.0)
     own = view.own_point
-    run_end = view.point_run_end[own]
-    rows = np.arange(n)
-    k = 1
-    while rows.size:
-        idx = own[rows] + k
-        inside = idx < run_end[rows]
-        rows, idx = rows[inside], idx[inside]
-        ahead = view.point_pos[idx] - view.s[rows]
-        near = ahead <= reach
-        rows, idx = rows[near], idx[near]
-        if rows.size == 0:
-            break
+
+    def bind(rows: IntArray, idx: IntArray, ahead: FloatArray) -> None:
         lead = view.point_vehicle[idx]
+        keep = (ahead > TIE_M) | (rank[lead] > rank[rows])  # ties: the larger key leads
+        rows, idx, lead = rows[keep], idx[keep], lead[keep]
         bound = safe_following.safe_accel(
             view.s[rows], u_all[rows], view.point_pos[idx], u_all[lead], gap, b, dt,
         )
@@ -99,13 +97,29 @@ def shield_bounds(
         cap[rows[tighter]] = bound[tighter]
         binder[rows[tighter]] = lead[tighter]
         pulled[lead[bound < -b]] = True
-        k += 1
+
+    # Sorted order puts every point more than TIE_M ahead after the vehicle's own point; ties
+    # can sit on either side of it, so both directions are scanned (backwards, ties only).
+    for step, end, lo, hi in ((1, view.point_run_end[own], -TIE_M, reach),
+                              (-1, view.point_run_start[own] - 1, -TIE_M, TIE_M)):
+        rows = np.arange(n)
+        k = step
+        while rows.size:
+            idx = own[rows] + k
+            inside = idx < end[rows] if step > 0 else idx > end[rows]
+            rows, idx = rows[inside], idx[inside]
+            ahead = view.point_pos[idx] - view.s[rows]
+            near = (ahead <= hi) & (ahead >= lo) if step < 0 else ahead <= hi
+            rows, idx, ahead = rows[near], idx[near], ahead[near]
+            if rows.size:
+                bind(rows, idx, ahead)
+            k += step
     # A pulled vehicle that its own bound keeps from accelerating pulls the vehicle that binds
     # it, and so on along the chain (each vehicle at most once).
     stuck = pulled & (cap < b) & (binder >= 0)
     while stuck.any():
-        ahead = binder[stuck]
-        fresh = ahead[~pulled[ahead]]
+        ahead_of = binder[stuck]
+        fresh = ahead_of[~pulled[ahead_of]]
         pulled[fresh] = True
         stuck = np.zeros(n, dtype=bool)
         stuck[fresh] = True
@@ -114,11 +128,12 @@ def shield_bounds(
 
 
 def apply_shield(
-    accel: FloatArray, view: VirtualLaneView, v: FloatArray, config: MiVeCCConfig
+    accel: FloatArray, view: VirtualLaneView, v: FloatArray, rank: IntArray,
+    config: MiVeCCConfig,
 ) -> FloatArray:
     """The fused accelerations [m/s^2] under the shield: a pulled vehicle takes ``+a_max``, then
     every vehicle is capped by its bound, never below ``-a_max`` through the cap (a vehicle that
     cannot keep the invariant brakes at ``a_max``); see :func:`shield_bounds`."""
-    cap, pulled = shield_bounds(view, v, config)
+    cap, pulled = shield_bounds(view, v, rank, config)
     wanted = np.where(pulled, config.a_max_mps2, accel)
     return np.minimum(wanted, np.maximum(cap, -config.a_max_mps2))

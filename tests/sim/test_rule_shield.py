@@ -16,11 +16,15 @@ from tests.sim._scenario import EAST, SOUTH, WEST, hand_sim, place
 SHIELD = MiVeCCConfig(rows=1, cols=1, safety_shield=True)
 
 
+def ranks(sim: Simulator) -> np.ndarray:
+    return sim.vid.ravel()[sim.view.vehicle]
+
+
 def caps(vehicles: list[tuple[int, float, float]]) -> np.ndarray:
     sim = hand_sim(SHIELD)
     place(sim, vehicles)
     view = sim.view
-    return rule_shield.shield_bounds(view, sim.v.ravel()[view.vehicle], sim.config)[0]
+    return rule_shield.shield_bounds(view, sim.v.ravel()[view.vehicle], ranks(sim), sim.config)[0]
 
 
 def test_own_lane_cap_is_the_stopping_point_bound_in_the_vmin_frame() -> None:
@@ -59,24 +63,48 @@ def test_a_broken_pair_brakes_the_follower_and_pulls_the_leader(speed: float) ->
     place(sim, [(EAST, 130.0, speed), (SOUTH, 142.0, speed), (WEST, 60.0, speed)])
     view = sim.view
     v = sim.v.ravel()[view.vehicle]
-    cap, pulled = rule_shield.shield_bounds(view, v, sim.config)
+    cap, pulled = rule_shield.shield_bounds(view, v, ranks(sim), sim.config)
     assert pulled.tolist() == [False, True, False]
     assert cap[0] < -SHIELD.a_max_mps2 and cap[1] == np.inf
-    accel = rule_shield.apply_shield(np.array([2.0, -3.0, -1.0]), view, v, sim.config)
+    accel = rule_shield.apply_shield(np.array([2.0, -3.0, -1.0]), view, v, ranks(sim), sim.config)
     assert accel.tolist() == [-SHIELD.a_max_mps2, SHIELD.a_max_mps2, -1.0]
 
 
-def test_a_pulled_vehicle_still_keeps_its_own_gap() -> None:
+def test_a_pulled_vehicle_keeps_its_own_gap_and_pulls_its_leader() -> None:
     # South is pulled by east but has its own leader 6 m ahead at v_min: its own bound wins
-    # (it may not close on its leader).
+    # (it may not close on its leader), and that leader is pulled in turn.
     sim = hand_sim(SHIELD)
     place(sim, [(EAST, 130.0, 10.0), (SOUTH, 142.0, 10.0), (SOUTH, 148.0, 6.0)])
     view = sim.view
     v = sim.v.ravel()[view.vehicle]
-    cap, pulled = rule_shield.shield_bounds(view, v, sim.config)
-    assert pulled[1] and -SHIELD.a_max_mps2 < cap[1] < SHIELD.a_max_mps2
-    accel = rule_shield.apply_shield(np.zeros(3), view, v, sim.config)
-    assert accel[1] == cap[1]
+    cap, pulled = rule_shield.shield_bounds(view, v, ranks(sim), sim.config)
+    assert pulled.tolist() == [False, True, True]
+    assert -SHIELD.a_max_mps2 < cap[1] < SHIELD.a_max_mps2 and cap[2] == np.inf
+    accel = rule_shield.apply_shield(np.zeros(3), view, v, ranks(sim), sim.config)
+    assert accel.tolist() == [-SHIELD.a_max_mps2, cap[1], SHIELD.a_max_mps2]
+
+
+@pytest.mark.parametrize("order", [(EAST, SOUTH), (SOUTH, EAST)])
+def test_a_tie_has_one_leader_on_both_lanes(order: tuple[int, int]) -> None:
+    # Both 10 m before their shared conflict point (east's at 145, south's at 155), both at
+    # v_min: one point on both virtual lanes. The larger vehicle id (the second placed) leads.
+    start = {EAST: 135.0, SOUTH: 145.0}
+    sim = hand_sim(SHIELD)
+    place(sim, [(lane, start[lane], 6.0) for lane in order])
+    view = sim.view
+    cap, pulled = rule_shield.shield_bounds(view, sim.v.ravel()[view.vehicle], ranks(sim),
+                                            sim.config)
+    assert pulled.tolist() == [False, True]
+    assert cap[0] < -SHIELD.a_max_mps2 and cap[1] == np.inf
+
+
+def test_an_unbroken_pair_pulls_nobody() -> None:
+    # The same south pair without the east vehicle: south keeps its bound, nobody is pulled.
+    sim = hand_sim(SHIELD)
+    place(sim, [(SOUTH, 142.0, 10.0), (SOUTH, 148.0, 6.0)])
+    view = sim.view
+    _, pulled = rule_shield.shield_bounds(view, sim.v.ravel()[view.vehicle], ranks(sim), sim.config)
+    assert not pulled.any()
 
 
 def test_released_rules_at_v_min_no_longer_collide() -> None:
@@ -128,3 +156,26 @@ def test_batch_equals_single_runs() -> None:
         order_mine, order_theirs = np.argsort(mine["vid"]), np.argsort(theirs["vid"])
         for name in ("vid", "s", "v", "a"):
             np.testing.assert_array_equal(theirs[name][order_theirs], mine[name][order_mine])
+
+
+def test_environments_run_under_the_shield() -> None:
+    import warnings
+
+    from pettingzoo.test import parallel_api_test
+
+    from mivecc_env import mivecc_v0
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # image-like observation advice
+        parallel_api_test(mivecc_v0.parallel_env(rows=1, cols=2, density=1800, scheme="EEC",
+                                                 safety_shield=True, max_cycles=40),
+                          num_cycles=50)
+    env = mivecc_v0.parallel_env(rows=1, cols=1, density=2100, scheme="EE", model="released",
+                                 safety_shield=True, max_steps=300)
+    env.reset(seed=0)
+    for _ in range(300):
+        actions = {a: np.full(env.action_space(a).shape, 3.0, dtype=np.float32)
+                   for a in env.agents}
+        *_, infos = env.step(actions)
+    summary = infos["cloud_0"]
+    assert summary["collisions"] == 0 and summary["throughput"] > 0
