@@ -48,7 +48,7 @@ def _status(name: str, argv: list[str]) -> int:
     ("cloud_pick_counts", ["--grid", "0x3"], "argument --grid: must be an integer in [1, 16]"),
     ("shield_stress", ["--steps", "0"], "argument --steps: must be an integer >= 1, got '0'"),
     ("shield_stress", ["--models", "paper", "paper"],
-     "--models: each value at most once, got paper twice"),
+     "--models: each value at most once, got 'paper' twice"),
     ("rules_study", ["--densities", "nan"], "argument --densities: must be a number in"),
     ("rules_study", ["--out", "NOTES/sub"], "--out: cannot create NOTES/sub"),
     ("speed", ["--grids", "0x3"], "argument --grids: must be an integer in [1, 16], got 0"),

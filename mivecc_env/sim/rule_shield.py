@@ -33,7 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
-from mivecc_env.sim import safe_following
+from mivecc_env.sim import safe_following, shield_kernel
 from mivecc_env.sim.virtual_lane import POSITION_RESOLUTION_M, VirtualLaneView
 
 FloatArray = NDArray[np.float64]
@@ -50,6 +50,58 @@ def horizon_m(config: MiVeCCConfig) -> float:
     u_max = config.v_max_mps - config.v_min_mps
     return (u_max * u_max / (2.0 * config.a_max_mps2) + config.v_max_mps * config.dt_s
             + config.shield_gap_m)
+
+
+def scan_reference(
+    own: IntArray, run_start: IntArray, run_end: IntArray, point_pos: FloatArray,
+    point_vehicle: IntArray, s: FloatArray, u: FloatArray, rank: IntArray, reach: float,
+    tie: float, gap: float, b: float, dt: float,
+) -> tuple[FloatArray, IntArray, NDArray[np.bool_]]:
+    """Every vehicle's bound against the points ahead of it on its virtual lane (numpy path).
+
+    Args:
+        own: (n,) sorted index of each vehicle's own point; run_start / run_end: (P,) its
+            group's first / one-past-last index; point_pos / point_vehicle: (P,) the view's.
+        s: (n,) positions [m]; u: (n,) velocities above ``v_min`` [m/s]; rank: (n,) tie keys.
+        reach: :func:`horizon_m` [m]; tie: :data:`TIE_M` [m]; gap [m]; b: ``a_max`` [m/s^2];
+            dt [s].
+
+    Returns (cap, binder, pulled): the bound [m/s^2] (``inf`` where none), the vehicle that
+    gives it (-1), and the vehicles ahead in a pair whose bound is below ``-b``. Scans one
+    point further along every lane per pass until no vehicle has a point within ``reach``
+    left; points within ``tie`` of the vehicle count as ahead when their rank is larger (they
+    may sit on either side of its own point, so ties are scanned backwards too).
+    """
+    n = own.size
+    cap = np.full(n, np.inf)
+    pulled = np.zeros(n, dtype=bool)
+    binder = np.full(n, -1, dtype=np.int64)
+
+    def bind(rows: IntArray, idx: IntArray, ahead: FloatArray) -> None:
+        lead = point_vehicle[idx]
+        keep = (ahead > tie) | (rank[lead] > rank[rows])  # ties: the larger key leads
+        rows, idx, lead = rows[keep], idx[keep], lead[keep]
+        bound = safe_following.safe_accel(s[rows], u[rows], point_pos[idx], u[lead], gap, b, dt)
+        tighter = bound < cap[rows]
+        cap[rows[tighter]] = bound[tighter]
+        binder[rows[tighter]] = lead[tighter]
+        pulled[lead[bound < -b]] = True
+
+    for step, end, lo, hi in ((1, run_end[own], -np.inf, reach),
+                              (-1, run_start[own] - 1, -tie, tie)):
+        rows = np.arange(n)
+        k = step
+        while rows.size:
+            idx = own[rows] + k
+            inside = idx < end[rows] if step > 0 else idx > end[rows]
+            rows, idx = rows[inside], idx[inside]
+            ahead = point_pos[idx] - s[rows]
+            near = (ahead <= hi) & (ahead >= lo)
+            rows, idx, ahead = rows[near], idx[near], ahead[near]
+            if rows.size:
+                bind(rows, idx, ahead)
+            k += step
+    return cap, binder, pulled
 
 
 def shield_bounds(
@@ -72,48 +124,20 @@ def shield_bounds(
     violated pair: its follower alone cannot restore the gap (both at ``v_min``, for instance,
     neither can slow down), so the leader accelerates; where its own bound keeps it from
     accelerating, the vehicle that gives that bound is pulled too, along the chain. The scan
-    goes one point further along every lane per pass and stops when no vehicle has a point
-    within the horizon left: a handful of numpy passes per step, no loop over vehicles.
+    is :func:`shield_kernel.scan` (compiled) or :func:`scan_reference` (numpy), bit for bit
+    the same.
     """
     n = view.n_vehicles
-    cap = np.full(n, np.inf)
-    pulled = np.zeros(n, dtype=bool)
-    binder = np.full(n, -1)  # the vehicle whose point gives each vehicle's bound
     if n == 0:
-        return cap, pulled
-    b, dt, gap = config.a_max_mps2, config.dt_s, config.shield_gap_m
-    reach = horizon_m(config)
-    u_all = np.maximum(v - config.v_min_mps, 0.0)
+        return np.full(0, np.inf), np.zeros(0, dtype=bool)
+    u = np.maximum(v - config.v_min_mps, 0.0)
     own = view.own_point
-
-    def bind(rows: IntArray, idx: IntArray, ahead: FloatArray) -> None:
-        lead = view.point_vehicle[idx]
-        keep = (ahead > TIE_M) | (rank[lead] > rank[rows])  # ties: the larger key leads
-        rows, idx, lead = rows[keep], idx[keep], lead[keep]
-        bound = safe_following.safe_accel(
-            view.s[rows], u_all[rows], view.point_pos[idx], u_all[lead], gap, b, dt,
-        )
-        tighter = bound < cap[rows]
-        cap[rows[tighter]] = bound[tighter]
-        binder[rows[tighter]] = lead[tighter]
-        pulled[lead[bound < -b]] = True
-
-    # Sorted order puts every point more than TIE_M ahead after the vehicle's own point; ties
-    # can sit on either side of it, so both directions are scanned (backwards, ties only).
-    for step, end, lo, hi in ((1, view.point_run_end[own], -TIE_M, reach),
-                              (-1, view.point_run_start[own] - 1, -TIE_M, TIE_M)):
-        rows = np.arange(n)
-        k = step
-        while rows.size:
-            idx = own[rows] + k
-            inside = idx < end[rows] if step > 0 else idx > end[rows]
-            rows, idx = rows[inside], idx[inside]
-            ahead = view.point_pos[idx] - view.s[rows]
-            near = (ahead <= hi) & (ahead >= lo) if step < 0 else ahead <= hi
-            rows, idx, ahead = rows[near], idx[near], ahead[near]
-            if rows.size:
-                bind(rows, idx, ahead)
-            k += step
+    args = (own, view.point_run_start, view.point_run_end, view.point_pos, view.point_vehicle,
+            view.s, u, np.ascontiguousarray(rank, dtype=np.int64), horizon_m(config), TIE_M,
+            config.shield_gap_m, config.a_max_mps2, config.dt_s)
+    fast = shield_kernel.scan(*args)
+    cap, binder, pulled = fast if fast is not None else scan_reference(*args)
+    b = config.a_max_mps2
     # A pulled vehicle that its own bound keeps from accelerating pulls the vehicle that binds
     # it, and so on along the chain (each vehicle at most once).
     stuck = pulled & (cap < b) & (binder >= 0)

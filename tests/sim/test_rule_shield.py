@@ -179,3 +179,31 @@ def test_environments_run_under_the_shield() -> None:
         *_, infos = env.step(actions)
     summary = infos["cloud_0"]
     assert summary["collisions"] == 0 and summary["throughput"] > 0
+
+
+@pytest.mark.parametrize("model", ["paper", "released"])
+def test_compiled_scan_equals_the_numpy_reference(model: str) -> None:
+    from mivecc_env.sim import shield_kernel
+
+    if not shield_kernel.HAVE_NUMBA:
+        pytest.skip("numba not installed")
+    config = MiVeCCConfig(rows=3, cols=3, density_vplh=2100, scheme="EE", model=model,
+                          safety_shield=True)
+    sim = Simulator(config, batch_size=2, seed=[0, 1])
+    rng = np.random.default_rng(0)
+    checked = 0
+    for t in range(600):
+        sim.step(edge_accel=rng.uniform(-3, 3, sim.active.shape))
+        if t % 50 != 49:
+            continue
+        view = sim.view
+        u = np.maximum(sim.v.ravel()[view.vehicle] - config.v_min_mps, 0.0)
+        args = (view.own_point, view.point_run_start, view.point_run_end, view.point_pos,
+                view.point_vehicle, view.s, u, sim.vid.ravel()[view.vehicle],
+                rule_shield.horizon_m(config), rule_shield.TIE_M, config.shield_gap_m,
+                config.a_max_mps2, config.dt_s)
+        fast, ref = shield_kernel.scan(*args), rule_shield.scan_reference(*args)
+        for a, b in zip(fast, ref, strict=True):
+            np.testing.assert_array_equal(a, b)
+        checked += int(np.isfinite(ref[0]).sum())
+    assert checked > 100
