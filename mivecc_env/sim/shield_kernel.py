@@ -32,6 +32,17 @@ def _safe_accel(s, u, s_obs, u_obs, gap, b, dt):  # pragma: no cover - compiled
 
 
 @njit
+def _bind(i, j, lead, point_pos, s, u, gap, b, dt, cap, binder, pulled):  # pragma: no cover
+    """Vehicle ``i`` against point ``j`` (vehicle ``lead``) ahead of it."""
+    bound = _safe_accel(s[i], u[i], point_pos[j], u[lead], gap, b, dt)
+    if bound < cap[i]:
+        cap[i] = bound
+        binder[i] = lead
+    if bound < -b:
+        pulled[lead] = True
+
+
+@njit
 def _scan(own, run_start, run_end, point_pos, point_vehicle, s, u, rank, reach, tie, gap, b,
           dt, cap, binder, pulled):  # pragma: no cover - compiled
     for i in range(own.size):
@@ -43,12 +54,7 @@ def _scan(own, run_start, run_end, point_pos, point_vehicle, s, u, rank, reach, 
                 break
             lead = point_vehicle[j]
             if ahead > tie or rank[lead] > rank[i]:
-                bound = _safe_accel(s[i], u[i], point_pos[j], u[lead], gap, b, dt)
-                if bound < cap[i]:
-                    cap[i] = bound
-                    binder[i] = lead
-                if bound < -b:
-                    pulled[lead] = True
+                _bind(i, j, lead, point_pos, s, u, gap, b, dt, cap, binder, pulled)
             j += 1
         j = o - 1
         while j >= run_start[o]:
@@ -57,12 +63,7 @@ def _scan(own, run_start, run_end, point_pos, point_vehicle, s, u, rank, reach, 
                 break
             lead = point_vehicle[j]
             if rank[lead] > rank[i]:
-                bound = _safe_accel(s[i], u[i], point_pos[j], u[lead], gap, b, dt)
-                if bound < cap[i]:
-                    cap[i] = bound
-                    binder[i] = lead
-                if bound < -b:
-                    pulled[lead] = True
+                _bind(i, j, lead, point_pos, s, u, gap, b, dt, cap, binder, pulled)
             j -= 1
 
 
