@@ -17,12 +17,14 @@ apart (the two distances to the conflict point ``d1``, ``d2`` give ``sqrt(d1^2 +
 keeps every pair that holds the invariant apart by more than ``vehicle_length_m``.
 
 Every pair on a virtual lane is ordered the same way on both of its lanes (by signed distance
-to the shared conflict point), so exactly one of the two, the follower, keeps the invariant.
+to the shared conflict point; a tie, which the view's sort leaves in construction order, goes to
+the larger vehicle id), so exactly one of the two, the follower, keeps the invariant.
 Once it holds, braking at ``b`` keeps it against any leader that brakes at most at ``b``. It can
 be violated where braking cannot help: when a crossing vehicle first comes into view
 (``projection_window_m`` before the conflict point) already too close, or when the released
 code's speed reset lifts a velocity to ``v_max`` in one step. The follower then brakes at ``b``
-and the vehicle ahead of it accelerates at ``a_max`` (as far as its own bound allows), which
+and the vehicle ahead of it accelerates at ``a_max`` (as far as its own bound allows; where
+that bound holds it back, the vehicle that sets it is pulled too, along the chain), which
 restores the gap even when both are at ``v_min``, where braking alone cannot. Whether that
 always suffices is measured, not assumed (``docs/model.md``, "A safety shield").
 """
