@@ -457,12 +457,15 @@ class MiVeCCConfig:
              f"got {self.projection_window_m}")
         need(2 * self.lane_offset_m < half, "lane_offset_m",
              f"must be below segment_length_m / 4 = {half / 2}, got {self.lane_offset_m}")
-        # Opposite-direction lanes run 2 * lane_offset_m apart; only same-lane and
-        # conflict-point pairs are checked for collisions, so longer vehicles would overlap unseen.
         need(not self.safety_shield
              or self.shield_gap_m >= math.sqrt(2.0) * self.vehicle_length_m, "shield_gap_m",
              f"must be at least sqrt(2) * vehicle_length_m = "
              f"{math.sqrt(2.0) * self.vehicle_length_m:.4g}, got {self.shield_gap_m}")
+        need(not self.safety_shield or self.control == "unsignalized", "safety_shield",
+             f"acts on the MiVeCC rules only (control='unsignalized'), got "
+             f"control={self.control!r}")
+        # Opposite-direction lanes run 2 * lane_offset_m apart; only same-lane and
+        # conflict-point pairs are checked for collisions, so longer vehicles would overlap unseen.
         need(self.vehicle_length_m <= 2 * self.lane_offset_m, "vehicle_length_m",
              f"must be at most 2 * lane_offset_m = {2 * self.lane_offset_m} (vehicles on "
              f"opposite-direction lanes would overlap unseen), got {self.vehicle_length_m}")

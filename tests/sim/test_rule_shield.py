@@ -121,6 +121,8 @@ def test_gap_must_cover_a_crossing_pair() -> None:
     with pytest.raises(ConfigError, match=r"shield_gap_m: must be at least sqrt\(2\)"):
         MiVeCCConfig(safety_shield=True, shield_gap_m=2.5)
     MiVeCCConfig(shield_gap_m=2.5)  # only checked when the shield is on
+    with pytest.raises(ConfigError, match="safety_shield: acts on the MiVeCC rules only"):
+        MiVeCCConfig(safety_shield=True, control="signalized")
     MiVeCCConfig(vehicle_length_m=3.0)
 
 
