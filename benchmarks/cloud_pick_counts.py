@@ -20,12 +20,11 @@ import sys
 from collections.abc import Sequence
 
 import numpy as np
+from paper_table import DENSITIES
 from tqdm import tqdm
 
 from mivecc_env import cli_args
 from mivecc_env.batched import BatchedMiVeCCEnv
-
-DENSITIES = (300.0, 600.0, 900.0, 1200.0, 1500.0, 1800.0, 2100.0)
 
 
 def sample_picks(

@@ -25,6 +25,7 @@ import sys
 from collections.abc import Sequence
 
 import numpy as np
+from paper_table import DENSITIES
 from tqdm import tqdm
 
 from mivecc_env import cli_args
@@ -32,7 +33,6 @@ from mivecc_env.config import MiVeCCConfig
 from mivecc_env.metrics import batch_summary
 from mivecc_env.sim.core import Simulator
 
-DENSITIES = (300.0, 600.0, 900.0, 1200.0, 1500.0, 1800.0, 2100.0)
 ACTIONS = ("random", "plus3", "raw")
 
 
