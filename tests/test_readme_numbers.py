@@ -137,3 +137,26 @@ def test_shield_paragraph(default, released):
         cells = _cells(SHIELD / f"pt_shield_{model}" / "paper_table.csv")
         loss = {s: 100 * (1 - cells[(s, 2100)][key] / base[(s, 2100)][key]) for s in ("E", "EEC")}
         assert f"{model} model's E loses {loss['E']:.1f} %, EEC {loss['EEC']:.1f} %" in text
+
+
+def test_shield_figures_in_the_docs(default, released):
+    """docs/training.md and docs/model.md quote the shielded tables' smallest distance and how
+    far the velocities move at 300-900 veh/lane/h: recomputed from the committed runs."""
+    training, model = (" ".join((ROOT / "docs" / f).read_text(encoding="utf-8").split())
+                       for f in ("training.md", "model.md"))
+    closest = min(
+        x["min_distance_m"]
+        for name in ("released", "released_s3to7", "default", "default_s3to7",
+                     "released_per_lane")
+        for x in read_runs_csv(SHIELD / f"pt_shield_{name}" / "paper_table.csv"))
+    assert f"smallest centre distance in these runs is {closest:.2f} m" in training
+    assert f"smallest centre distance {closest:.2f} m" in model
+    moved = {}
+    for model_name, base, key in (("released", released, "rv"), ("default", default, "v")):
+        cells = _cells(SHIELD / f"pt_shield_{model_name}" / "paper_table.csv")
+        moved[model_name] = max(abs(cells[(s, d)][key] - base[(s, d)][key])
+                                for s in ("E", "EE", "EEC") for d in (300, 600, 900))
+    assert (f"by at most {moved['released']:.3f} m/s (released model) and "
+            f"{moved['default']:.3f} m/s") in training
+    assert moved["released"] < 0.02 and moved["default"] < 0.09
+    assert "under 0.02 m/s (released) and 0.09 m/s (default) at 300-900" in model
