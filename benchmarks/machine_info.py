@@ -53,23 +53,37 @@ def _cpuinfo() -> tuple[str | None, list[str]]:
             [f for f in ISA_FLAGS if f in have])
 
 
+def _actions_digest(path: Path, kind: str) -> str:
+    """md5 of a policy's float32 actions on fixed random graphs (a generator seeded here; an
+    edge on 9 graphs at once, a cloud on 1)."""
+    from mivecc_agents.policies import load_policy
+
+    policy = load_policy(path, expected_kind=kind)
+    rng = np.random.default_rng(0)
+    k = policy.grid_size
+    n = 9 if kind == "edge" else 1
+    obs = rng.uniform(-1.0, 1.0, (n, k, k, 3)).astype(np.float32)
+    mask = (rng.uniform(size=(n, k)) < 0.9).astype(np.float32)
+    actions = np.asarray(policy(obs, mask), dtype=np.float32)
+    return hashlib.md5(actions.tobytes()).hexdigest()
+
+
 def policy_digests() -> dict[str, str]:
-    """``"<model>/<kind>" -> md5`` of each shipped policy's float32 actions on fixed random
-    graphs (a generator seeded here; an edge on 9 graphs at once, a cloud on 1). Two machines
+    """``"<model>/<kind>" -> md5`` of each shipped policy's actions (:func:`_actions_digest`),
+    and ``"<model>/shield/<kind>"`` for a policy shipped for the safety shield. Two machines
     with the same digests round the shipped networks alike, so their runs with these policies
     should match bit for bit; different digests mean they will diverge."""
-    from mivecc_agents.policies import pretrained_policies
+    from mivecc_agents.policies import pretrained_path
 
     out: dict[str, str] = {}
     for model in ("paper", "released"):
-        for kind, policy in sorted(pretrained_policies(model).items()):
-            rng = np.random.default_rng(0)
-            k = policy.grid_size
-            n = 9 if kind == "edge" else 1
-            obs = rng.uniform(-1.0, 1.0, (n, k, k, 3)).astype(np.float32)
-            mask = (rng.uniform(size=(n, k)) < 0.9).astype(np.float32)
-            actions = np.asarray(policy(obs, mask), dtype=np.float32)
-            out[f"{model}/{kind}"] = hashlib.md5(actions.tobytes()).hexdigest()
+        for kind in ("cloud", "edge"):
+            plain = pretrained_path(kind, model)
+            shielded = pretrained_path(kind, model, safety_shield=True)
+            if plain is not None:
+                out[f"{model}/{kind}"] = _actions_digest(plain, kind)
+            if shielded not in (None, plain):
+                out[f"{model}/shield/{kind}"] = _actions_digest(shielded, kind)
     return out
 
 

@@ -76,11 +76,13 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
 
     (scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period,
      overrides) = job
-    policies = pretrained_policies(model, edge=edge_path, cloud=cloud_path)
+    config = from_overrides(model=model, **overrides)
+    policies = pretrained_policies(model, edge=edge_path, cloud=cloud_path,
+                                   safety_shield=config.safety_shield)
     run_scheme = scheme
     if scheme in CEILINGS:
         run_scheme, kind = CEILINGS[scheme]
-        k = getattr(from_overrides(model=model, **overrides), f"k_{kind}")
+        k = getattr(config, f"k_{kind}")
         policies[kind] = constant_policy(kind, 3.0, k)
     # a learned cloud decides at the period it was trained with (evaluate_batch adopts it),
     # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both

@@ -32,6 +32,7 @@ from mivecc_agents.cli import DEFAULT_EVAL_THREADS, set_inference_threads
 from mivecc_agents.evaluation import evaluate_scheme
 from mivecc_agents.policies import pretrained_policies
 from mivecc_env import cli_args
+from mivecc_env.config import from_overrides
 
 
 class CollisionTracer:
@@ -119,7 +120,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.scheme != "E":
         set_inference_threads(args.threads)
 
-    policies = (pretrained_policies(args.model, edge=args.edge, cloud=args.cloud)
+    shield = from_overrides(model=args.model, **overrides).safety_shield
+    policies = (pretrained_policies(args.model, edge=args.edge, cloud=args.cloud,
+                                    safety_shield=shield)
                 if args.scheme != "E" else {})
     tracer = CollisionTracer(args.history)
     result = evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,

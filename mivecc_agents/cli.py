@@ -228,13 +228,15 @@ def evaluation_policies(
         uses_policy,
     )
 
-    model = config.model if config is not None else "paper"  # the shipped policies per model
+    # the shipped policies per model, and per shield setting where the model has a shield pair
+    model = config.model if config is not None else "paper"
+    shield = config.safety_shield if config is not None else False
     paths = {}
     for kind in ("edge", "cloud"):
         # a shipped policy the scheme does not use is not loaded (a given one is, and warned
         # about below)
         unused = config is not None and not uses_policy(config, kind)
-        paths[kind] = None if args.no_pretrained or unused else pretrained_path(kind, model)
+        paths[kind] = None if args.no_pretrained or unused else pretrained_path(kind, model, shield)
     given = {"edge": args.edge_checkpoint, "cloud": args.cloud_checkpoint}
     policies, options = {}, {}
     for kind in ("edge", "cloud"):

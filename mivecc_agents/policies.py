@@ -140,8 +140,9 @@ def check_policy_config(policy: Any, config: Any) -> list[str]:
         Warnings (empty when all fits): the scheme does not use this coordinator; a cloud
         policy on another grid than it was trained on (the cloud sees the whole grid; an edge
         policy sees one intersection, so it is trained on 1x1 and used on any grid); a cloud
-        policy used with another ``cloud_period`` than it was trained with; and any of
-        :data:`DYNAMICS_FIELDS` that differ.
+        policy used with another ``cloud_period`` than it was trained with; any of
+        :data:`DYNAMICS_FIELDS` that differ; and another ``safety_shield`` than the policy's
+        training (when its checkpoint records one).
 
     Raises:
         CheckpointError: The environment's state-graph size K differs from the policy's.
@@ -173,10 +174,14 @@ def check_policy_config(policy: Any, config: Any) -> list[str]:
                 config, name)]
     if diff:
         out.append(f"trained with other dynamics: {', '.join(diff)}")
+    shield = trained.get("safety_shield")  # absent from policies trained before the shield
+    if shield is not None and shield != config.safety_shield:
+        out.append(f"the {kind} policy was trained with safety_shield={shield!r}, the "
+                   f"environment has safety_shield={config.safety_shield!r}")
     return out
 
 
-def pretrained_path(kind: str, model: str = "paper") -> Path | None:
+def pretrained_path(kind: str, model: str = "paper", safety_shield: bool = False) -> Path | None:
     """Path of the shipped pretrained checkpoint of a kind for a model, or ``None``.
 
     Args:
@@ -184,21 +189,27 @@ def pretrained_path(kind: str, model: str = "paper") -> Path | None:
         model: The env config's ``model``: ``"paper"`` (the default model; files
             ``pretrained/<kind>.pt``) or ``"released"`` (``pretrained/released/<kind>.pt``,
             trained on the released model).
+        safety_shield: The env config's ``safety_shield``. When true and the model has a
+            policy of this kind trained under the shield (``<model folder>/shield/<kind>.pt``),
+            that one; otherwise the model's policy trained without it.
     """
     folder = PRETRAINED_DIR if model == "paper" else PRETRAINED_DIR / str(model)
-    path = folder / f"{kind}.pt"
-    return path if path.is_file() else None
+    candidates = [folder / "shield" / f"{kind}.pt"] if safety_shield else []
+    candidates.append(folder / f"{kind}.pt")
+    return next((path for path in candidates if path.is_file()), None)
 
 
 def pretrained_policies(
     model: str = "paper", edge: str | Path | None = None, cloud: str | Path | None = None,
+    safety_shield: bool = False,
 ) -> dict[str, Policy]:
-    """The shipped policies of a model as ``{"edge": fn, "cloud": fn}`` (the kinds shipped);
-    a checkpoint given as ``edge`` / ``cloud`` replaces that kind's shipped policy."""
+    """The shipped policies of a model (and shield setting, see :func:`pretrained_path`) as
+    ``{"edge": fn, "cloud": fn}`` (the kinds shipped); a checkpoint given as ``edge`` /
+    ``cloud`` replaces that kind's shipped policy."""
     given = {"edge": edge, "cloud": cloud}
     out: dict[str, Policy] = {}
     for kind in ("edge", "cloud"):
-        path = given[kind] or pretrained_path(kind, model)
+        path = given[kind] or pretrained_path(kind, model, safety_shield)
         if path is not None:
             out[kind] = load_policy(path, expected_kind=kind)
     return out
