@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from paper_table import config_overrides
 
 from mivecc_agents.checkpoints import load_checkpoint, network_variant
 from mivecc_agents.evaluation import evaluate_batch
@@ -46,6 +47,11 @@ from mivecc_agents.learner import SATURATED_Z
 from mivecc_agents.networks import make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 from mivecc_env import cli_args
+from mivecc_env.config import from_overrides
+
+#: Config fields this script's own options set (not accepted by --set).
+OWN_FIELDS = {"rows": "--rows", "cols": "--cols", "density_vplh": "--densities",
+              "scheme": "--kind", "max_steps": "--steps", "model": "--model"}
 
 ACTION_BOUND_MPS2 = 3.0
 #: An action this close to a bound counts as at the bound [m/s^2].
@@ -64,12 +70,16 @@ SCHEME = {"edge": "EE", "cloud": "EEC"}
 def collect_states(
     kind: str, model: str, rows: int, cols: int, densities: Sequence[float],
     seeds: Sequence[int], steps: int, skip: int, every: int, path: Path,
+    overrides: dict[str, Any] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, int | None]:
     """Observations (n, K, K, 3) and masks (n, K) of every node of ``kind`` with a decision
     vehicle, kept every ``every`` steps from step ``skip`` on, under the checkpoint's policy
     (a cloud: over the model's shipped edge, deciding at its training ``cloud_period``, also
-    returned; an edge: MiVeCC-EE, period ``None``)."""
-    policies = {"edge": pretrained_policies(model)["edge"]} if kind == "cloud" else {}
+    returned; an edge: MiVeCC-EE, period ``None``), with the config ``overrides`` (``--set``)."""
+    overrides = overrides or {}
+    shield = from_overrides(model=model, **overrides).safety_shield
+    policies = ({"edge": pretrained_policies(model, safety_shield=shield)["edge"]}
+                if kind == "cloud" else {})
     policies[kind] = load_policy(path, expected_kind=kind)
     obs: list[np.ndarray] = []
     masks: list[np.ndarray] = []
@@ -88,7 +98,7 @@ def collect_states(
 
     results = evaluate_batch(SCHEME[kind], rows, cols, densities, steps, seeds,
                              policies=policies, progress=False, warn=False, on_step=record,
-                             model=model)
+                             model=model, **overrides)
     period = int(results[0]["cloud_period"]) if kind == "cloud" else None
     return np.concatenate(obs), np.concatenate(masks), period
 
@@ -194,8 +204,11 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
     parser.add_argument("--constants", type=cli_args.number(-3.0, 3.0), nargs="*",
                         default=[-3.0, 0.0, 3.0],
                         help="constant probe actions [m/s^2]")
+    parser.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+", default=[],
+                        help="other config fields, e.g. safety_shield=true (as paper_table.py)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results"))
     args = parser.parse_args(argv)
+    overrides = config_overrides(args.set_items, args.model, OWN_FIELDS)
     cli_args.writable_dir("--out", args.out)
     kind = fixed_kind or args.kind
     if not 0 <= args.skip < args.steps:
@@ -212,13 +225,15 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
     other = "cloud" if kind == "edge" else "edge"
     if fixed_kind is None and getattr(args, other) is not None:
         parser.error(f"--{other}: checks --kind {other} only; this run checks --kind {kind}")
-    path = given if given is not None else pretrained_path(kind, args.model)
+    shield = from_overrides(model=args.model, **overrides).safety_shield
+    path = given if given is not None else pretrained_path(kind, args.model, shield)
     if path is None:
         parser.error(f"--{kind}: no shipped {kind} for model {args.model!r}; name a checkpoint")
     torch.set_num_threads(1)
     t0 = time.perf_counter()
     obs, mask, period = collect_states(kind, args.model, args.rows, args.cols, args.densities,
-                                       args.seeds, args.steps, args.skip, args.every, path)
+                                       args.seeds, args.steps, args.skip, args.every, path,
+                                       overrides)
     rows = critic_gaps(kind, path, obs, mask, args.shift, args.constants)
     cols = actor_columns(kind, path, obs, mask)
     of_period = "" if period is None else f" (cloud_period {period})"
@@ -244,7 +259,8 @@ def main(argv: Sequence[str] | None = None, *, fixed_kind: str | None = None,
         f"{' '.join(f'{d:g}' for d in args.densities)} --seeds "
         f"{' '.join(map(str, args.seeds))} --steps {args.steps} --skip {args.skip} --every "
         f"{args.every} --shift {args.shift:g} --constants "
-        f"{' '.join(f'{c:g}' for c in args.constants)}`",
+        f"{' '.join(f'{c:g}' for c in args.constants)}"
+        + (f" --set {' '.join(args.set_items)}" if args.set_items else "") + "`",
         "",
         f"{len(obs)} {kind} states{of_period} of "
         + (f"`{given}`." if given is not None else f"the shipped {args.model}-model {kind}."),

@@ -18,6 +18,7 @@ import cloud_pick_counts
 import cloud_reward_check
 import comparison
 import critic_check
+import edge_reward_check
 import machine_info
 import near_miss_cost
 import paper_table
@@ -256,6 +257,41 @@ def test_critic_check_probes_an_edge_critic(tmp_path: Path) -> None:
         with pytest.raises(SystemExit) as exc:
             critic_check.main([*argv, "--out", str(tmp_path)])
         assert exc.value.code == 2
+
+
+def test_critic_check_passes_set_fields_to_the_env(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seen: list[dict] = []
+    real = critic_check.evaluate_batch
+
+    def spy(*args: object, **kwargs: object) -> list[dict]:
+        seen.append(dict(kwargs))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(critic_check, "evaluate_batch", spy)
+    critic_check.main(["--kind", "edge", "--model", "released", "--rows", "1", "--cols", "1",
+                       "--densities", "1500", "--seeds", "0", "--steps", "200", "--skip", "100",
+                       "--every", "25", "--set", "safety_shield=true", "--out", str(tmp_path)])
+    assert seen and seen[0]["safety_shield"] is True
+    text = (tmp_path / "edge_critic_check_released.md").read_text()
+    assert "--constants -3 0 3 --set safety_shield=true`" in text.splitlines()[0]
+
+
+def test_edge_reward_check_ranks_constant_edges(tmp_path: Path) -> None:
+    rows = edge_reward_check.main([
+        "--model", "released", "--densities", "1500", "--seeds", "0", "--steps", "400",
+        "--skip", "100", "--constants", "0", "3", "--set", "reward_sv_weight=0",
+        "edge_reward_scope=decisions", "collision_penalty=0", "--out", str(tmp_path)])
+    by_name = {r["edge"]: r for r in rows}
+    zero, plus3 = by_name["constant +0 m/s^2"], by_name["constant +3 m/s^2"]
+    # with the velocity term alone, the reward and the velocity both prefer +3 to 0
+    assert plus3["edge_reward"] > zero["edge_reward"]
+    assert plus3["released_velocity_mps"] > zero["released_velocity_mps"]
+    assert len(rows) == 3 and rows[-1]["edge"].startswith("learned (")
+    text = (tmp_path / "edge_reward_check_released.md").read_text()
+    assert text.startswith("Command: `python benchmarks/edge_reward_check.py --model released")
+    assert text.count("| constant") == 2 and "| learned (" in text
 
 
 def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> None:
