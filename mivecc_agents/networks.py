@@ -387,6 +387,19 @@ class _SquashedActor:
         """The last dense layer (initialised in +-3e-3)."""
         return _last_linear(self.mlp)
 
+    def start_near(self, accel_mps2: float) -> None:
+        """Set the output layer's bias to ``atanh(accel_mps2 / 3)``: with the small output
+        weights of the DDPG initialisation, every column's action then starts near
+        ``accel_mps2`` [m/s^2], in (-3, 3).
+
+        Raises:
+            ValueError: ``accel_mps2`` not a finite number strictly inside (-3, 3).
+        """
+        if not (math.isfinite(accel_mps2) and abs(accel_mps2) < ACTION_SCALE_MPS2):
+            raise ValueError(f"accel_mps2: must be a number in (-3, 3) m/s^2, got {accel_mps2!r}")
+        with torch.no_grad():
+            self.output_layer.bias.fill_(math.atanh(accel_mps2 / ACTION_SCALE_MPS2))
+
     def forward(self, observation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """Compute the accelerations of the decision vehicles.
 

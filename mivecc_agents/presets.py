@@ -96,6 +96,11 @@ class TrainPreset:
             loss (:func:`mivecc_agents.learner.preactivation_penalty`); ``None``: no penalty
             (the released trainer; its clouds saturate, ``docs/training.md``).
         actor_preact_weight: Weight of that penalty (>= 0).
+        actor_init_action: Start the actor near this action [m/s^2] in every column: its output
+            layer's bias is set to ``atanh(a / 3)`` (the weights keep their initialisation, so
+            the actions start spread around it); ``None``: the usual initialisation. Warm-starts
+            the policy at a constant coordinator (e.g. +2.9, just inside the +3 bound where the
+            tanh still has a gradient) for training to improve on.
         reward_shaping: ``"none"``: the env's reward; ``"potential"``: the trained group's
             reward plus ``gamma Phi(s') - Phi(s)`` with ``Phi(s)`` = the reward's velocity
             term in ``s`` / (1 - gamma) (:mod:`mivecc_agents.reward_shaping`: the same optimal
@@ -132,6 +137,7 @@ class TrainPreset:
     eval_seeds: int = 1
     actor_preact_bound: float | None = None
     actor_preact_weight: float = 1.0
+    actor_init_action: float | None = None
     reward_shaping: Literal["none", "potential"] = "none"
 
     def __post_init__(self) -> None:
@@ -189,8 +195,9 @@ _FIELD_RANGES: dict[str, Range] = {
     "eval_every_frames": Range(0, math.inf, integer=True),
     "eval_steps": Range(1, math.inf, integer=True),
     "eval_seeds": Range(1, math.inf, integer=True),
+    "actor_init_action": Range(-3.0, 3.0, lo_open=True, hi_open=True),
 }
-_OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm")
+_OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm", "actor_init_action")
 
 
 PRESETS: dict[str, TrainPreset] = {
@@ -280,9 +287,8 @@ def preset_with(preset: str | TrainPreset, items: dict[str, Any]) -> TrainPreset
         try:
             changes[key] = _convert(str(raw).strip(), hints[key])
         except ValueError:
-            allowed = typing.get_args(hints[key]) or hints[key].__name__
             raise ValueError(
-                f"--preset-set {key}: cannot use {raw!r} (expected {allowed})"
+                f"--preset-set {key}: cannot use {raw!r} (expected {_describe(hints[key])})"
             ) from None
     # an explicit change also holds in stage II
     changes["cloud_changes"] = tuple((k, v) for k, v in p.cloud_changes if k not in changes)
@@ -290,6 +296,17 @@ def preset_with(preset: str | TrainPreset, items: dict[str, Any]) -> TrainPreset
 
 
 _NOT_SETTABLE = ("name", "env_overrides", "cloud_changes")
+
+
+def _describe(hint: Any) -> str:
+    """What a field of type ``hint`` accepts, in words: ``a finite number or none``."""
+    options = typing.get_args(hint)
+    if typing.get_origin(hint) is Literal:
+        return "one of " + ", ".join(map(str, options))
+    words = {float: "a finite number", int: "an integer", bool: "true or false"}
+    kinds = [words.get(t, getattr(t, "__name__", str(t))) for t in options or (hint,)
+             if t is not type(None)]
+    return " or ".join(kinds + (["none"] if type(None) in options else []))
 
 
 def _convert(text: str, hint: Any) -> Any:

@@ -686,6 +686,8 @@ def _train(
               f"with those (the preset names {p.network!r})", file=sys.stderr)
         p = p.replace(network=network_variant(start))
     actor = make_actor(group, group, variant=p.network)
+    if p.actor_init_action is not None and start is None:  # a resumed run keeps its weights
+        actor.module.start_near(p.actor_init_action)
     critic = make_critic(group, group, variant=p.network)
     warm = start is not None and "loss" not in start
     if warm:

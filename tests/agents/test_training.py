@@ -386,3 +386,40 @@ def test_replay_buffer_keeps_each_batch_of_the_reused_collector_buffer() -> None
     assert kept[1].abs().sum() > 0  # vehicles in the graphs
     torch.testing.assert_close(stored[:400], kept[0].reshape(400, *kept[0].shape[2:]))
     torch.testing.assert_close(stored[400:], kept[1].reshape(400, *kept[1].shape[2:]))
+
+
+@pytest.mark.parametrize(("kind", "variant"), [("edge", "paper"), ("edge", "released"),
+                                               ("cloud", "per_pick")])
+def test_start_near_sets_every_column_near_the_action(kind: str, variant: str) -> None:
+    from mivecc_agents.networks import make_actor_net
+
+    torch.manual_seed(0)
+    net = make_actor_net(kind, variant=variant)
+    k = net.spec.grid_size
+    obs, mask = torch.rand(8, k, k, 3) * 2 - 1, torch.ones(8, k)
+    assert net(obs, mask).abs().max() < 0.5  # the usual start: near 0
+    net.start_near(2.9)
+    assert torch.allclose(net(obs, mask), torch.full((8, k), 2.9), atol=0.05)
+    net.start_near(-1.0)
+    assert torch.allclose(net(obs, mask), torch.full((8, k), -1.0), atol=0.15)
+    for bad in (3.0, -3.0, float("nan")):
+        with pytest.raises(ValueError, match="accel_mps2"):
+            net.start_near(bad)
+
+
+def test_actor_init_action_starts_the_trained_actor_there(tmp_path: Path) -> None:
+    """No update happens before the warm-up is full: the checkpoint's actor is the start."""
+    from mivecc_agents.policies import load_policy
+    from mivecc_agents.presets import preset_with
+
+    path = train_tiny_edge(tmp_path, TINY.replace(warmup_frames=10_000, actor_init_action=2.5))
+    policy = load_policy(path)
+    obs = np.random.default_rng(0).uniform(-1, 1, (4, 15, 15, 3)).astype(np.float32)
+    actions = policy(obs, np.ones((4, 15), np.float32))
+    assert np.allclose(actions, 2.5, atol=0.1)
+    for bad in ("3", "-3.5"):
+        with pytest.raises(ValueError, match=r"actor_init_action: must be a number in \(-3"):
+            preset_with("released", {"actor_init_action": bad})
+    with pytest.raises(ValueError, match=r"cannot use 'nan' \(expected a finite number or none\)"):
+        preset_with("released", {"actor_init_action": "nan"})
+    assert preset_with("released", {"actor_init_action": "none"}).actor_init_action is None
