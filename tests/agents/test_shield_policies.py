@@ -24,10 +24,12 @@ from mivecc_env.config import from_overrides
 @pytest.fixture
 def shipped_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A copy of the shipped folder whose released model has a shield edge and no shield
-    cloud (the real shipped files, so that they load)."""
+    cloud, and whose default model has no shield policy (the real shipped files, so that
+    they load)."""
     folder = tmp_path / "pretrained"
     shutil.copytree(policies_module.PRETRAINED_DIR, folder)
-    shutil.rmtree(folder / "released" / "shield", ignore_errors=True)
+    for shield in (folder / "shield", folder / "released" / "shield"):
+        shutil.rmtree(shield, ignore_errors=True)
     (folder / "released" / "shield").mkdir()
     shutil.copy(folder / "edge.pt", folder / "released" / "shield" / "edge.pt")
     monkeypatch.setattr(policies_module, "PRETRAINED_DIR", folder)
