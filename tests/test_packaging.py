@@ -57,10 +57,9 @@ def test_every_tracked_data_file_is_package_data() -> None:
 
 
 def test_shipped_policies_of_both_models_are_package_data() -> None:
-    # both models' pairs, without and with the safety shield
     globs = _package_data()
-    for rel in (f"pretrained/{model}{shield}{kind}.pt" for model in ("", "released/")
-                for shield in ("", "shield/") for kind in ("edge", "cloud")):
+    for rel in ("pretrained/edge.pt", "pretrained/cloud.pt", "pretrained/released/edge.pt",
+                "pretrained/released/cloud.pt"):
         assert _shipped(f"mivecc_agents/{rel}", globs), rel
         assert (ROOT / "mivecc_agents" / rel).is_file(), rel
 
