@@ -57,9 +57,11 @@ def test_every_tracked_data_file_is_package_data() -> None:
 
 
 def test_shipped_policies_of_both_models_are_package_data() -> None:
+    # both models' pairs, and their edges for the safety shield
     globs = _package_data()
     for rel in ("pretrained/edge.pt", "pretrained/cloud.pt", "pretrained/released/edge.pt",
-                "pretrained/released/cloud.pt"):
+                "pretrained/released/cloud.pt", "pretrained/shield/edge.pt",
+                "pretrained/released/shield/edge.pt"):
         assert _shipped(f"mivecc_agents/{rel}", globs), rel
         assert (ROOT / "mivecc_agents" / rel).is_file(), rel
 

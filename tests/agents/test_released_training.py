@@ -252,6 +252,42 @@ def test_shipped_policies_per_model_load_and_evaluate_deterministically(model):
     assert evaluation_policies(args, MiVeCCConfig(model=model, rows=3, cols=3)) == {}
 
 
+@pytest.mark.parametrize("model", ["paper", "released"])
+def test_shipped_shield_edges_load_record_their_training_and_are_picked(model):
+    # docs/training.md, "The shield pair": each model ships an edge trained under the shield
+    # (its reward over the whole control area, no SV term); its cloud is the one shipped
+    # without the shield (the clouds retrained under it did worse), picked by the fallback
+    import argparse
+
+    from mivecc_agents.cli import evaluation_policies
+    from mivecc_agents.evaluation import evaluate_batch
+    from mivecc_agents.policies import pretrained_path, pretrained_policies
+
+    paths = {kind: pretrained_path(kind, model, safety_shield=True) for kind in ("edge", "cloud")}
+    assert paths["edge"].parent.name == "shield"
+    assert paths["edge"] != pretrained_path("edge", model)
+    assert paths["cloud"] == pretrained_path("cloud", model)
+    policies = pretrained_policies(model, safety_shield=True)
+    edge = policies["edge"].config
+    assert {k: edge.get(k) for k in ("model", "safety_shield", "reward_sv_weight",
+                                     "edge_reward_scope")} == {
+        "model": model, "safety_shield": True, "reward_sv_weight": 0.0,
+        "edge_reward_scope": "area"}
+    runs = [evaluate_batch("EEC", 3, 3, 2100, 120, [0], policies=policies, progress=False,
+                           warn=False, model=model, safety_shield=True)[0] for _ in range(2)]
+    keys = ("mean_speed_mps", "in_network", "min_distance_m", "min_ttc_s", "collisions")
+    assert runs[0]["coordinator_actions"] == "policy"
+    assert [runs[0][k] for k in keys] == [runs[1][k] for k in keys]
+    # `mivecc evaluate` picks the shield edge when the config has the shield, not without it
+    args = argparse.Namespace(no_pretrained=False, edge_checkpoint=None, cloud_checkpoint=None)
+    config = MiVeCCConfig(model=model, rows=3, cols=3, scheme="EEC", safety_shield=True)
+    chosen = evaluation_policies(args, config)
+    assert {k: p.checkpoint for k, p in chosen.items()} == {k: str(p) for k, p in paths.items()}
+    plain = evaluation_policies(args, config.replace(safety_shield=False))
+    assert {k: p.checkpoint for k, p in plain.items()} == {
+        k: str(pretrained_path(k, model)) for k in ("edge", "cloud")}
+
+
 def test_constant_policy_is_the_ceiling_coordinator():
     from mivecc_agents.policies import constant_policy
 
