@@ -228,7 +228,7 @@ def evaluation_policies(
         uses_policy,
     )
 
-    # the shipped policies per model, and per shield setting where the model has a shield pair
+    # the shipped policies per model, and per shield setting where the model has shield ones
     model = config.model if config is not None else "paper"
     shield = config.safety_shield if config is not None else False
     paths = {}

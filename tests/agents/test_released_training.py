@@ -254,7 +254,7 @@ def test_shipped_policies_per_model_load_and_evaluate_deterministically(model):
 
 @pytest.mark.parametrize("model", ["paper", "released"])
 def test_shipped_shield_edges_load_record_their_training_and_are_picked(model):
-    # docs/training.md, "The shield pair": each model ships an edge trained under the shield
+    # docs/training.md, "The shield edges": each model ships an edge trained under the shield
     # (its reward over the whole control area, no SV term); its cloud is the one shipped
     # without the shield (the clouds retrained under it did worse), picked by the fallback
     import argparse
