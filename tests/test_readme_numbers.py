@@ -160,3 +160,32 @@ def test_shield_figures_in_the_docs(default, released):
             f"{moved['default']:.3f} m/s") in training
     assert moved["released"] < 0.02 and moved["default"] < 0.09
     assert "under 0.02 m/s (released) and 0.09 m/s (default) at 300-900" in model
+
+
+def test_shield_edge_figures(default, released):
+    """The README's shield-edge sentence: the share of the +3 edge's gain each edge realises
+    under the shield (seeds 0-2), and the released model's EEC-vs-E span with either edge,
+    recomputed from the committed runs (the shares as paper_targets.py prints them)."""
+    text = " ".join(README.split())
+    s27 = ROOT / "docs" / "results" / "training" / "session27"
+
+    def share(cells: dict, key: str) -> str:
+        ours, ceiling = (_gains(cells, s, "E", key) for s in ("EE", "EE+3"))
+        ratio = [100 * o / c for o, c in zip(ours, ceiling, strict=True) if round(c, 2) > 0]
+        return f"{min(ratio):.0f}-{max(ratio):.0f} %"
+
+    shield_edge = {m: _cells(s27 / f"pt_shield_pair_{m}" / "paper_table.csv")
+                   for m in ("released", "default")}
+    trained_without = {m: _cells(SHIELD / f"pt_shield_{m}" / "paper_table.csv")
+                       for m in ("released", "default")}
+    assert (f"realises {share(shield_edge['released'], 'rv')} (released model) and "
+            f"{share(shield_edge['default'], 'v')} (default model)") in text
+    assert (f"realise {share(trained_without['released'], 'rv')} and "
+            f"{share(trained_without['default'], 'v')}") in text
+    new, old = (_gains(c, "EEC", "E", "rv") for c in (shield_edge["released"],
+                                                     trained_without["released"]))
+    assert f"gains {_span(new)} over E in released-style velocity" in text
+    assert f"against {_span(old)} with the pair trained without the shield" in text
+    paper = PAPER_3X3["EEC vs E"]
+    assert f"(the paper: {min(paper.values()):.2f}-{max(paper.values()):.2f} %)" in text
+    assert all(g > paper[d] for g, d in zip(new, DENSITIES, strict=True))
