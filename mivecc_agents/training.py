@@ -829,15 +829,32 @@ def _train(
     evaluate = _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {},
                                     out_dir, edge_ckpt_path, append=append_logs)
     next_eval, last_eval = state["frames"], None
+    best_path = out_dir / f"{stage}_best.pt"
+    best_gain = _best_gain(best_path) if append_logs else -math.inf
+
+    def _save_best(gain: float) -> None:
+        """The policy of the best deterministic evaluation so far, as a slim checkpoint (actor
+        and critic, no optimiser or target copies: it loads with ``load_policy``)."""
+        save_checkpoint(best_path, {
+            **meta,
+            "actor": actor.module.state_dict(),
+            "critic": _on_cpu(learn_critic.module.state_dict()),
+            "frames": state["frames"],
+            "updates": state["updates"],
+            "metrics": {"eval_gain_pct": gain, "iteration": state["iteration"]},
+        })
 
     def _maybe_evaluate(final: bool = False) -> None:
         """Evaluate when due; ``final``: unless the current weights were just evaluated."""
-        nonlocal next_eval, last_eval
+        nonlocal next_eval, last_eval, best_gain
         due = state["frames"] != last_eval if final else state["frames"] >= next_eval
         if evaluate is None or not due:
             return
         last_eval = state["frames"]
         gain = evaluate(actor.module, state["frames"], state["updates"])
+        if gain > best_gain:  # NaN (no baseline velocity) never counts as better
+            best_gain = gain
+            _save_best(gain)
         if progress:
             import sys
 
@@ -939,6 +956,13 @@ def _train(
     if stop.requested:
         raise TrainingInterrupted(path, state["frames"])
     return path
+
+
+def _best_gain(path: Path) -> float:
+    """The evaluation gain [%] a run's best-policy checkpoint records (``-inf``: none yet)."""
+    if not path.exists():
+        return -math.inf
+    return float(load_checkpoint(path)["metrics"].get("eval_gain_pct", -math.inf))
 
 
 def _periodic_evaluation(

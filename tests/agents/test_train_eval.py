@@ -8,6 +8,7 @@ import pytest
 
 pytest.importorskip("torchrl")
 
+from mivecc_agents.checkpoints import load_checkpoint
 from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.policies import load_policy
 from mivecc_agents.presets import EVAL_SEED0, preset_with
@@ -33,3 +34,17 @@ def test_edge_training_logs_deterministic_evaluations(tmp_path):
     assert float(last["baseline_mps"]) == pytest.approx(mean(e), rel=1e-12)
     assert float(last["gain_pct"]) == pytest.approx(100 * (mean(ee) / mean(e) - 1), rel=1e-9)
     assert {r["baseline_mps"] for r in rows} == {last["baseline_mps"]}
+    # edge_best.pt holds the policy of the best evaluation (mean gain over the densities)
+    best_row = max(rows, key=lambda r: float(r["gain_pct"]))  # one density: the row's gain
+    best = load_checkpoint(tmp_path / "edge_best.pt")
+    assert best["frames"] == int(best_row["frames"])
+    assert best["metrics"]["eval_gain_pct"] == pytest.approx(float(best_row["gain_pct"]))
+    best_ee = evaluate_batch("EE", 1, 1, 1500, 400, seeds, progress=False,
+                             policies={"edge": load_policy(tmp_path / "edge_best.pt")})
+    assert mean(best_ee) == pytest.approx(float(best_row["velocity_mps"]), rel=1e-12)
+    assert "optimizer" not in best and "loss" not in best  # slim, as the shipped exports
+    # a resumed run starts from the recorded best, a fresh run from nothing
+    from mivecc_agents.training import _best_gain
+
+    assert _best_gain(tmp_path / "edge_best.pt") == best["metrics"]["eval_gain_pct"]
+    assert _best_gain(tmp_path / "absent.pt") == float("-inf")
