@@ -186,6 +186,11 @@ def test_shield_edge_figures(default, released):
                                                      trained_without["released"]))
     assert f"gains {_span(new)} over E in released-style velocity" in text
     assert f"against {_span(old)} with the pair trained without the shield" in text
+    cloud_share = _gains(shield_edge["released"], "EEC", "EE", "rv")
+    assert f"EEC vs EE {_span(cloud_share)}, under half the paper's at 300-1200" in text
+    half = [PAPER_3X3["EEC vs EE"][d] / 2 for d in DENSITIES]
+    assert [d for d, g, h in zip(DENSITIES, cloud_share, half, strict=True)
+            if round(g, 2) < h] == [300, 600, 900, 1200]
     paper = PAPER_3X3["EEC vs E"]
     assert f"(the paper: {min(paper.values()):.2f}-{max(paper.values()):.2f} %)" in text
     assert all(g > paper[d] for g, d in zip(new, DENSITIES, strict=True))
