@@ -812,14 +812,16 @@ def _train(
         },
     }
 
-    def _save(metrics: dict[str, float], path: Path = ckpt_path) -> Path:
+    def _save(metrics: dict[str, float], path: Path = ckpt_path, slim: bool = False) -> Path:
+        """The run's checkpoint; ``slim``: without the optimiser and target copies (it loads
+        with ``load_policy`` but cannot be resumed)."""
         return save_checkpoint(
             path,
             {
                 **meta,
                 "actor": actor.module.state_dict(),
                 "critic": _on_cpu(learn_critic.module.state_dict()),
-                **_on_cpu(learner.state_dict()),
+                **({} if slim else _on_cpu(learner.state_dict())),
                 "frames": state["frames"],
                 "updates": state["updates"],
                 "metrics": {**metrics, "iteration": state["iteration"]},
@@ -829,20 +831,8 @@ def _train(
     evaluate = _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {},
                                     out_dir, edge_ckpt_path, append=append_logs)
     next_eval, last_eval = state["frames"], None
-    best_path = out_dir / f"{stage}_best.pt"
+    best_path = out_dir / f"{stage}_best.pt"  # the policy of the best evaluation so far
     best_gain = _best_gain(best_path) if append_logs else -math.inf
-
-    def _save_best(gain: float) -> None:
-        """The policy of the best deterministic evaluation so far, as a slim checkpoint (actor
-        and critic, no optimiser or target copies: it loads with ``load_policy``)."""
-        save_checkpoint(best_path, {
-            **meta,
-            "actor": actor.module.state_dict(),
-            "critic": _on_cpu(learn_critic.module.state_dict()),
-            "frames": state["frames"],
-            "updates": state["updates"],
-            "metrics": {"eval_gain_pct": gain, "iteration": state["iteration"]},
-        })
 
     def _maybe_evaluate(final: bool = False) -> None:
         """Evaluate when due; ``final``: unless the current weights were just evaluated."""
@@ -854,7 +844,7 @@ def _train(
         gain = evaluate(actor.module, state["frames"], state["updates"])
         if gain > best_gain:  # NaN (no baseline velocity) never counts as better
             best_gain = gain
-            _save_best(gain)
+            _save({"eval_gain_pct": gain}, best_path, slim=True)
         if progress:
             import sys
 
