@@ -17,7 +17,7 @@ key                    content
 ``preset``             the training preset as a dict
 ``actor``              actor network state dict (``MiVeCCActorNet``)
 ``critic``             critic network state dict (``MiVeCCCriticNet``)
-``loss``               DDPGLoss state dict (actor, critic and their target copies)
+``loss``               DDPGLoss (or TD3Loss) state dict (actor, critic(s), their target copies)
 ``optimizer``          Adam state dict
 ``frames``             environment frames collected so far
 ``updates``            gradient updates done so far

@@ -1,4 +1,4 @@
-"""The DDPG learner of one agent group: TorchRL ``DDPGLoss`` + ``SoftUpdate`` + Adam.
+"""The learner of one agent group: TorchRL ``DDPGLoss`` (or ``TD3Loss``) + ``SoftUpdate`` + Adam.
 
 One object owns the loss (actor, critic and their target copies), the optimiser and the linear
 learning-rate decay, and performs gradient updates from a replay buffer. Training
@@ -17,6 +17,7 @@ from typing import Any
 import torch
 from torch import nn
 
+from mivecc_agents.networks import ACTION_SCALE_MPS2
 from mivecc_agents.presets import TrainPreset
 
 __all__ = [
@@ -25,18 +26,40 @@ __all__ = [
 ]
 
 
-def make_loss(actor: Any, critic: Any, group: str, gamma: float) -> Any:
-    """DDPG loss of one agent group: target actor and critic, per-group keys, TD(0)."""
-    from torchrl.objectives import DDPGLoss, ValueEstimators
+def make_loss(actor: Any, critic: Any, group: str, gamma: float,
+              twin: Any | None = None, preset: TrainPreset | None = None) -> Any:
+    """Loss of one agent group: target actor and critic(s), per-group keys, TD(0).
 
-    loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
-    loss.set_keys(
+    Args:
+        actor, critic: The group's actor and critic modules.
+        group: Agent group name (the keys are ``(group, ...)``).
+        gamma: Discount factor.
+        twin: A second critic, initialised apart from ``critic``: the loss is then TorchRL's
+            ``TD3Loss`` over the pair (``preset`` gives its target-action noise [m/s^2]);
+            ``None``: ``DDPGLoss``.
+        preset: The hyper-parameters (needed with ``twin``).
+    """
+    from torchrl.objectives import DDPGLoss, TD3Loss, ValueEstimators
+
+    keys = dict(
         state_action_value=(group, "state_action_value"),
         reward=(group, "reward"),
         done=(group, "done"),
         terminated=(group, "terminated"),
         priority=(group, "td_error"),  # one priority key per group, not a shared root key
     )
+    if twin is None:
+        loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
+    else:
+        if preset is None:
+            raise ValueError("preset: TD3 (a twin critic) needs the preset's noise settings")
+        loss = TD3Loss(
+            actor, [critic, twin], bounds=(-ACTION_SCALE_MPS2, ACTION_SCALE_MPS2),
+            policy_noise=preset.td3_target_noise, noise_clip=preset.td3_noise_clip,
+            loss_function="l2", delay_actor=True, delay_qvalue=True,
+        )
+        keys["action"] = (group, "action")
+    loss.set_keys(**keys)
     loss.make_value_estimator(ValueEstimators.TD0, gamma=gamma)
     return loss
 
@@ -119,6 +142,13 @@ class DDPGLearner:
         progress: Callable returning the fraction of the run done in [0, 1] (drives the linear
             learning-rate decay to 0); default: no decay. Ignored when the preset's
             ``lr_schedule`` is ``"constant"``.
+        twin: With the preset's ``algorithm="td3"``: the second critic (same architecture,
+            its own initialisation); the critics are then trained as TD3's pair and
+            ``critic`` itself only receives the first one's weights in
+            :meth:`critic_state_dict`.
+
+    Raises:
+        ValueError: ``algorithm="td3"`` without a ``twin``, or a ``twin`` with ``"ddpg"``.
     """
 
     def __init__(
@@ -128,16 +158,23 @@ class DDPGLearner:
         group: str,
         preset: TrainPreset,
         progress: Callable[[], float] | None = None,
+        twin: Any | None = None,
     ) -> None:
         from torchrl.objectives import SoftUpdate
 
+        self.td3 = preset.algorithm == "td3"
+        if self.td3 != (twin is not None):
+            raise ValueError(f"twin: algorithm {preset.algorithm!r} needs "
+                             f"{'a second critic' if self.td3 else 'no second critic'}")
         self.group = group
         self.preset = preset
         self.actor, self.critic = actor, critic
-        self.loss = make_loss(actor, critic, group, preset.gamma)
+        self.loss = make_loss(actor, critic, group, preset.gamma, twin=twin, preset=preset)
         self.updater = SoftUpdate(self.loss, tau=preset.tau)
         self._actor_params = list(actor.parameters())
-        self._critic_params = list(critic.parameters())
+        # TD3's critics live stacked in the loss (copies of ``critic`` and ``twin``)
+        self._critic_params = (list(self.loss.qvalue_network_params.values(True, True))
+                               if self.td3 else list(critic.parameters()))
         self.optimizer = torch.optim.Adam(
             [
                 {"params": self._actor_params, "lr": preset.lr_actor},
@@ -175,9 +212,11 @@ class DDPGLearner:
             if should_stop is not None and should_stop():
                 break
             batch = buffer.sample()
-            out = self.loss(batch)
-            total = out["loss_actor"] + out["loss_value"]
-            if p.actor_preact_bound is not None:
+            # TD3: the actor and the targets move on every td3_policy_delay-th update only
+            actor_step = not self.td3 or (self.updates + len(cl) + 1) % p.td3_policy_delay == 0
+            critic_loss, actor_loss, pred_value = self._losses(batch, actor_step)
+            total = critic_loss if actor_loss is None else critic_loss + actor_loss
+            if actor_step and p.actor_preact_bound is not None:
                 total = total + p.actor_preact_weight * preactivation_penalty(
                     self.actor.module, batch, self.group, p.actor_preact_bound)
             self.optimizer.zero_grad(set_to_none=True)
@@ -185,11 +224,12 @@ class DDPGLearner:
             if p.max_grad_norm is not None:
                 nn.utils.clip_grad_norm_(self._actor_params, p.max_grad_norm)
                 nn.utils.clip_grad_norm_(self._critic_params, p.max_grad_norm)
-            self.optimizer.step()
-            self.updater.step()
-            cl.append(out["loss_value"].detach())
-            al.append(out["loss_actor"].detach())
-            qm.append(out["pred_value"].detach().mean())
+            self.optimizer.step()  # (Adam skips the actor's parameters without a gradient)
+            if actor_step:
+                self.updater.step()
+                al.append(actor_loss.detach())
+            cl.append(critic_loss.detach())
+            qm.append(pred_value.detach().mean())
         done = len(cl)
         self.updates += done
         if done:  # (stepping the scheduler before the first optimizer.step() only warns)
@@ -201,6 +241,27 @@ class DDPGLearner:
             q_mean=_mean(qm),
             seconds=time.perf_counter() - t0,
         )
+
+    def _losses(self, batch: Any, actor_step: bool
+                ) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        """Critic loss, actor loss (``None`` when ``actor_step`` is False; TD3 only) and the
+        critics' predicted values of one minibatch."""
+        if not self.td3:
+            out = self.loss(batch)
+            return out["loss_value"], out["loss_actor"], out["pred_value"]
+        critic_loss, meta = self.loss.value_loss(batch)
+        actor_loss = self.loss.actor_loss(batch)[0] if actor_step else None
+        return critic_loss, actor_loss, meta["pred_value"]
+
+    def critic_state_dict(self) -> dict[str, torch.Tensor]:
+        """The critic's weights as checkpoints store them (TD3: the first critic's, the one
+        the actor climbs)."""
+        if self.td3:
+            from tensordict import TensorDict
+
+            TensorDict.from_module(self.critic).data.update_(
+                self.loss.qvalue_network_params[0].data)
+        return self.critic.module.state_dict()
 
     def lr(self) -> tuple[float, float]:
         """Current learning rates (actor, critic)."""

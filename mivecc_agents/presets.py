@@ -105,6 +105,15 @@ class TrainPreset:
             reward plus ``gamma Phi(s') - Phi(s)`` with ``Phi(s)`` = the reward's velocity
             term in ``s`` / (1 - gamma) (:mod:`mivecc_agents.reward_shaping`: the same optimal
             policies, without the speed level the critic would otherwise have to learn).
+        algorithm: ``"ddpg"``: TorchRL ``DDPGLoss`` (one critic; the paper's and the
+            released trainer's); ``"td3"``: TorchRL ``TD3Loss`` (Fujimoto et al. 2018: two
+            critics, the target from the smaller, noise on the target action, delayed actor
+            and target updates), against a critic that overrates the actor's own action.
+        td3_target_noise: TD3 only: std of the Gaussian noise on the target actor's action
+            [m/s^2] (TD3's 0.2 of the action bound).
+        td3_noise_clip: TD3 only: that noise is clipped to +-this [m/s^2] (TD3's 0.5 of the
+            bound).
+        td3_policy_delay: TD3 only: critic updates per actor and target update (TD3's 2).
     """
 
     name: str
@@ -139,6 +148,10 @@ class TrainPreset:
     actor_preact_weight: float = 1.0
     actor_init_action: float | None = None
     reward_shaping: Literal["none", "potential"] = "none"
+    algorithm: Literal["ddpg", "td3"] = "ddpg"
+    td3_target_noise: float = 0.6
+    td3_noise_clip: float = 1.5
+    td3_policy_delay: int = 2
 
     def __post_init__(self) -> None:
         for name, rng in _FIELD_RANGES.items():
@@ -196,6 +209,9 @@ _FIELD_RANGES: dict[str, Range] = {
     "eval_steps": Range(1, math.inf, integer=True),
     "eval_seeds": Range(1, math.inf, integer=True),
     "actor_init_action": Range(-3.0, 3.0, lo_open=True, hi_open=True),
+    "td3_target_noise": Range(0.0, math.inf),
+    "td3_noise_clip": Range(0.0, math.inf),
+    "td3_policy_delay": Range(1, math.inf, integer=True),
 }
 _OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm", "actor_init_action")
 

@@ -713,9 +713,11 @@ def _train(
     state = {"frames": 0, "updates": 0, "iteration": 0}
     # the learner's networks on ``device``; ``actor`` keeps acting in the envs on the CPU
     learn_actor, learn_critic, sync_actor = _learner_networks(actor, critic, device)
+    twin = (make_critic(group, group, variant=p.network).to(device)
+            if p.algorithm == "td3" else None)  # TD3's second critic, its own initialisation
     learner = DDPGLearner(
         learn_actor, learn_critic, group, p,
-        progress=lambda: state["frames"] / max(total_frames, 1),
+        progress=lambda: state["frames"] / max(total_frames, 1), twin=twin,
     )
     if start is not None and not warm:
         learner.load_state_dict(start)
@@ -820,7 +822,7 @@ def _train(
             {
                 **meta,
                 "actor": actor.module.state_dict(),
-                "critic": _on_cpu(learn_critic.module.state_dict()),
+                "critic": _on_cpu(learner.critic_state_dict()),
                 **({} if slim else _on_cpu(learner.state_dict())),
                 "frames": state["frames"],
                 "updates": state["updates"],
