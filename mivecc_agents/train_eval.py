@@ -14,6 +14,12 @@ the user's env fields (``--set``) but none of the preset's training-only fields 
 and training-time edge selection). The metric is the average travel velocity [m/s], or the
 released-style velocity (455 m metric) under ``model="released"``. Rows go to
 ``eval_log.csv`` (one per density and evaluation) and the curve to ``eval_curve.png``.
+
+Once per run the stage's constant-action ceiling is evaluated on the same seeds: the scheme
+with the trained coordinator replaced by one that always outputs +3 m/s^2 (``EE+3`` /
+``EEC+3`` of ``benchmarks/paper_table.py``; the cloud at the run's ``cloud_period``). Its
+velocity and gain are in every row (``ceiling_mps``, ``ceiling_gain_pct``) and dashed in the
+curve, so the curve shows how much of that gain the policy realises.
 """
 
 from __future__ import annotations
@@ -27,11 +33,14 @@ import numpy as np
 import torch
 
 from mivecc_agents.evaluation import Policy, evaluate_batch
-from mivecc_agents.policies import actor_policy
+from mivecc_agents.policies import actor_policy, constant_policy
 
 #: Columns of ``eval_log.csv``.
 EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
-               "collisions", "baseline_collisions", "metric", "seeds", "steps")
+               "collisions", "baseline_collisions", "metric", "seeds", "steps", "ceiling_mps",
+               "ceiling_gain_pct")
+#: The constant action of the ceiling [m/s^2].
+CEILING_ACCEL_MPS2 = 3.0
 
 
 class PeriodicEvaluation:
@@ -76,11 +85,29 @@ class PeriodicEvaluation:
             evaluate_batch(base_scheme, **self._args, policies=base_policies, progress=False,
                            warn=False, **self._overrides)
         )
+        self.ceiling = self._per_density(
+            evaluate_batch(self.scheme, **self._args, policies=self._ceiling_policies(),
+                           progress=False, warn=False, **self._overrides)
+        )
         self.csv_path = Path(out_dir) / "eval_log.csv"
         self.png_path = Path(out_dir) / "eval_curve.png"
-        if not (append and self.csv_path.exists()):
+        self._fields: Sequence[str] = EVAL_FIELDS
+        if append and self.csv_path.exists():  # a log of an older version keeps its columns
+            with self.csv_path.open(newline="") as fh:
+                self._fields = next(csv.reader(fh), None) or EVAL_FIELDS
+        else:
             with self.csv_path.open("w", newline="") as fh:
                 csv.DictWriter(fh, fieldnames=EVAL_FIELDS).writeheader()
+
+    def _ceiling_policies(self) -> dict[str, Policy]:
+        """The scheme's policies with the trained kind's replaced by the constant +3 one."""
+        from mivecc_env.config import from_overrides
+
+        k = getattr(from_overrides(**self._overrides), f"k_{self.kind}")
+        policies = {self.kind: constant_policy(self.kind, CEILING_ACCEL_MPS2, k)}
+        if self._edge is not None:
+            policies["edge"] = self._edge
+        return policies
 
     def _per_density(self, results: list[dict[str, Any]]) -> dict[float, tuple[float, float]]:
         """density -> (mean metric over seeds, collision events summed over seeds)."""
@@ -106,23 +133,31 @@ class PeriodicEvaluation:
         )
         gains = []
         with self.csv_path.open("a", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=EVAL_FIELDS)
+            writer = csv.DictWriter(fh, fieldnames=self._fields, extrasaction="ignore")
             for d, (v, coll) in now.items():
                 base, base_coll = self.baseline[d]
-                gain = 100.0 * (v / base - 1.0) if base > 0 else float("nan")
+                gain, ceiling_gain = _gain_pct(v, base), _gain_pct(self.ceiling[d][0], base)
                 gains.append(gain)
                 writer.writerow({"frames": frames, "updates": updates, "density": d,
                                  "velocity_mps": v, "baseline_mps": base, "gain_pct": gain,
                                  "collisions": coll, "baseline_collisions": base_coll,
                                  "metric": self.metric, "seeds": len(self._args["seeds"]),
-                                 "steps": self._args["steps"]})
+                                 "steps": self._args["steps"],
+                                 "ceiling_mps": self.ceiling[d][0],
+                                 "ceiling_gain_pct": ceiling_gain})
         plot_eval_curve(self.csv_path, self.png_path,
                         f"{self.scheme} vs {'E' if self.stage == 'edge' else 'EE'}")
         return float(np.nanmean(gains))
 
 
+def _gain_pct(velocity_mps: float, baseline_mps: float) -> float:
+    """Relative gain of ``velocity_mps`` over ``baseline_mps`` [%] (NaN without a baseline)."""
+    return 100.0 * (velocity_mps / baseline_mps - 1.0) if baseline_mps > 0 else float("nan")
+
+
 def plot_eval_curve(csv_path: Path, png_path: Path, title: str) -> Path:
-    """Gain over the baseline [%] vs training frames, one line per density."""
+    """Gain over the baseline [%] vs training frames, one line per density, and dashed in
+    the same colour the constant +3 ceiling's gain where the log has it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -133,8 +168,11 @@ def plot_eval_curve(csv_path: Path, png_path: Path, title: str) -> Path:
     fig, ax = plt.subplots(figsize=(7, 4))
     for d in sorted({float(r["density"]) for r in rows}):
         mine = [r for r in rows if float(r["density"]) == d]
-        ax.plot([int(r["frames"]) for r in mine], [float(r["gain_pct"]) for r in mine], "o-",
-                label=f"{d:g} veh/lane/h")
+        line, = ax.plot([int(r["frames"]) for r in mine], [float(r["gain_pct"]) for r in mine],
+                        "o-", label=f"{d:g} veh/lane/h")
+        if mine[-1].get("ceiling_gain_pct"):
+            ax.axhline(float(mine[-1]["ceiling_gain_pct"]), color=line.get_color(), ls="--",
+                       lw=1.0, label=f"{d:g}: constant +3 (ceiling)")
     ax.axhline(0.0, color="grey", lw=0.8)
     metric = rows[0]["metric"] if rows else "avg_travel_velocity_mps"
     if rows and "seeds" in rows[0]:

@@ -34,6 +34,15 @@ def test_edge_training_logs_deterministic_evaluations(tmp_path):
     assert float(last["baseline_mps"]) == pytest.approx(mean(e), rel=1e-12)
     assert float(last["gain_pct"]) == pytest.approx(100 * (mean(ee) / mean(e) - 1), rel=1e-9)
     assert {r["baseline_mps"] for r in rows} == {last["baseline_mps"]}
+    # the constant +3 edge on the same seeds: the ceiling of every row
+    from mivecc_agents.policies import constant_policy
+
+    ceiling = evaluate_batch("EE", 1, 1, 1500, 400, seeds, progress=False,
+                             policies={"edge": constant_policy("edge", 3.0, 15)})
+    assert {r["ceiling_mps"] for r in rows} == {last["ceiling_mps"]}
+    assert float(last["ceiling_mps"]) == pytest.approx(mean(ceiling), rel=1e-12)
+    assert float(last["ceiling_gain_pct"]) == pytest.approx(
+        100 * (mean(ceiling) / mean(e) - 1), rel=1e-9)
     # edge_best.pt holds the policy of the best evaluation (mean gain over the densities)
     best_row = max(rows, key=lambda r: float(r["gain_pct"]))  # one density: the row's gain
     best = load_checkpoint(tmp_path / "edge_best.pt")
@@ -48,3 +57,20 @@ def test_edge_training_logs_deterministic_evaluations(tmp_path):
 
     assert _best_gain(tmp_path / "edge_best.pt") == best["metrics"]["eval_gain_pct"]
     assert _best_gain(tmp_path / "absent.pt") == float("-inf")
+
+
+def test_a_resumed_log_of_an_older_version_keeps_its_columns(tmp_path):
+    """A log written before the ceiling columns existed is continued with its own columns."""
+    from mivecc_agents.networks import make_actor
+    from mivecc_agents.train_eval import PeriodicEvaluation
+
+    old = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
+           "collisions", "baseline_collisions", "metric", "seeds", "steps")
+    with (tmp_path / "eval_log.csv").open("w", newline="") as fh:
+        csv.writer(fh).writerow(old)
+    evaluation = PeriodicEvaluation("edge", 1, 1, [900], [EVAL_SEED0], 50, {}, tmp_path,
+                                    append=True)
+    evaluation(make_actor("edge", "edge").module, 10, 1)
+    with (tmp_path / "eval_log.csv").open() as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == list(old) and len(rows) == 2 and len(rows[1]) == len(old)
