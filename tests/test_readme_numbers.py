@@ -194,3 +194,24 @@ def test_shield_edge_figures(default, released):
     paper = PAPER_3X3["EEC vs E"]
     assert f"(the paper: {min(paper.values()):.2f}-{max(paper.values()):.2f} %)" in text
     assert all(g > paper[d] for g, d in zip(new, DENSITIES, strict=True))
+
+
+def test_td3_edge_table_in_training_doc():
+    """docs/training.md's TD3 table (session 28): EE vs E of the shipped shield edge, the TD3
+    edge and the +3 edge, and the share of the +3 edge's gain, from the committed runs."""
+    training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    results = ROOT / "docs" / "results" / "training"
+    for model, base, key in (("released", "pt_area", "rv"), ("default", "pt_paper_area", "v")):
+        s27 = _cells(results / "session27" / base / "paper_table.csv")
+        td3_ee = _cells(results / "session28" / f"pt_td3_{'paper' if model == 'default' else model}"
+                        / "paper_table.csv")
+        td3 = {**s27, **{k: v for k, v in td3_ee.items() if k[0] == "EE"}}
+        ceiling = _gains(s27, "EE+3", "E", key)
+        for label, cells in (("the shipped shield edge (DDPG)", s27), ("TD3", td3)):
+            gains = _gains(cells, "EE", "E", key)
+            share = [100 * g / c for g, c in zip(gains, ceiling, strict=True)]
+            row = (f"| {model}, {label} | " + " | ".join(f"{g:+.2f}" for g in gains)
+                   + f" | {min(share):.0f}-{max(share):.0f} % |")
+            assert row in training, row
+        row = f"| {model}, constant +3 edge | " + " | ".join(f"{g:+.2f}" for g in ceiling)
+        assert row in training, row
