@@ -167,14 +167,14 @@ def test_shield_edge_figures(default, released):
     under the shield (seeds 0-2), and the released model's EEC-vs-E span with either edge,
     recomputed from the committed runs (the shares as paper_targets.py prints them)."""
     text = " ".join(README.split())
-    s27 = ROOT / "docs" / "results" / "training" / "session27"
+    s28 = ROOT / "docs" / "results" / "training" / "session28"  # the shipped shield edges
 
     def share(cells: dict, key: str) -> str:
         ours, ceiling = (_gains(cells, s, "E", key) for s in ("EE", "EE+3"))
         ratio = [100 * o / c for o, c in zip(ours, ceiling, strict=True) if round(c, 2) > 0]
         return f"{min(ratio):.0f}-{max(ratio):.0f} %"
 
-    shield_edge = {m: _cells(s27 / f"pt_shield_pair_{m}" / "paper_table.csv")
+    shield_edge = {m: _cells(s28 / f"pt_shield_pair_{m}" / "paper_table.csv")
                    for m in ("released", "default")}
     trained_without = {m: _cells(SHIELD / f"pt_shield_{m}" / "paper_table.csv")
                        for m in ("released", "default")}
@@ -197,7 +197,7 @@ def test_shield_edge_figures(default, released):
 
 
 def test_td3_edge_table_in_training_doc():
-    """docs/training.md's TD3 table (session 28): EE vs E of the shipped shield edge, the TD3
+    """docs/training.md's TD3 table (session 28): EE vs E of session 27's shield edge, the TD3
     edge and the +3 edge, and the share of the +3 edge's gain, from the committed runs."""
     training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
     results = ROOT / "docs" / "results" / "training"
@@ -207,7 +207,7 @@ def test_td3_edge_table_in_training_doc():
                         / "paper_table.csv")
         td3 = {**s27, **{k: v for k, v in td3_ee.items() if k[0] == "EE"}}
         ceiling = _gains(s27, "EE+3", "E", key)
-        for label, cells in (("the shipped shield edge (DDPG)", s27), ("TD3", td3)):
+        for label, cells in (("session 27's shield edge (DDPG)", s27), ("TD3", td3)):
             gains = _gains(cells, "EE", "E", key)
             share = [100 * g / c for g, c in zip(gains, ceiling, strict=True)]
             row = (f"| {model}, {label} | " + " | ".join(f"{g:+.2f}" for g in gains)
@@ -215,3 +215,98 @@ def test_td3_edge_table_in_training_doc():
             assert row in training, row
         row = f"| {model}, constant +3 edge | " + " | ".join(f"{g:+.2f}" for g in ceiling)
         assert row in training, row
+
+
+def test_exploration_table_in_training_doc():
+    """docs/training.md's 1x1 table of session 28's edge variants: the gains of each run's
+    deterministic evaluation and of the constant +3 edge, from the committed eval_log.csv files."""
+    import csv
+
+    training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    results = ROOT / "docs" / "results" / "training"
+
+    def gains(run: str, frames: int, column: str = "gain_pct") -> list[str]:
+        with (results / run / "eval_log.csv").open() as fh:
+            rows = [r for r in csv.DictReader(fh) if int(r["frames"]) == frames]
+        assert [float(r["density"]) for r in rows] == [900.0, 1500.0, 2100.0]
+        return [f"{float(r[column]):+.2f}" for r in rows]
+
+    runs = [
+        ("released, session 27's shield edge (scalar noise 0.1), 60 000 frames",
+         "session27/edge_released_shield_sv0_area", 60_000),
+        ("released, TD3, 60 000 frames", "session28/edge_released_shield_td3", 60_000),
+        ("released, `actor_preact_bound=3`, 60 000 frames",
+         "session28/edge_released_shield_area_bound3", 60_000),
+        ("released, session 27's run continued, 120 000 frames",
+         "session28/edge_released_shield_area_150k", 120_000),
+        ("released, session 27's run continued, 150 000 frames",
+         "session28/edge_released_shield_area_150k", 150_000),
+        ("released, per-column noise 1.0 -> 0.3, seed 0, 60 000 frames",
+         "session28/edge_released_shield_area_percol", 60_000),
+        ("released, per-column noise 1.0 -> 0.3, seed 1, 60 000 frames",
+         "session28/edge_released_shield_area_percol_seed1", 60_000),
+        ("default, session 27's shield edge, 60 000 frames",
+         "session27/edge_paper_shield_sv0_area", 60_000),
+        ("default, per-column noise 1.0 -> 0.3, seed 0, 60 000 frames",
+         "session28/edge_paper_shield_area_percol", 60_000),
+    ]
+    ceilings = {m: " / ".join(gains(f"session28/edge_{m}_shield_area_percol", 60_000,
+                                     "ceiling_gain_pct")) for m in ("released", "paper")}
+    for i, (label, run, frames) in enumerate(runs):
+        model = "released" if label.startswith("released") else "paper"
+        first = i == 0 or label.split(",")[0] != runs[i - 1][0].split(",")[0]
+        row = f"| {label} | " + " | ".join(gains(run, frames)) + " | " + (
+            ceilings[model] if first else "same") + " |"
+        assert row in training, row
+    # every run of a model was evaluated on the same seeds: one ceiling per model
+    for run in ("edge_released_shield_area_bound3", "edge_released_shield_area_percol_seed1",
+                "edge_released_shield_area_150k"):
+        assert " / ".join(gains(f"session28/{run}", 60_000 if "150k" not in run else 120_000,
+                                "ceiling_gain_pct")) == ceilings["released"]
+
+
+def test_shipped_shield_edge_table_in_training_doc():
+    """docs/training.md's 3x3 table of the session-28 shield edges, from the committed runs."""
+    training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    s27, s28 = (ROOT / "docs" / "results" / "training" / f"session{n}" for n in (27, 28))
+
+    def cells(*paths: Path) -> dict:
+        merged = [row for p in paths for row in read_runs_csv(p)]
+        tmp = {}
+        for row in merged:  # a later file's run replaces an earlier one's
+            tmp[(row["scheme"], row["density"], row["seed"])] = row
+        rows = list(tmp.values())
+        out = summarise(rows, "3x3")[1]
+        for (scheme, d), cell in out.items():
+            cell["rv"] = float(np.mean([x["released_velocity_mps"] for x in rows
+                                        if (x["scheme"], x["density"]) == (scheme, d)]))
+        return out
+
+    def row(label: str, values: list[float], fmt: str) -> None:
+        line = f"| {label} | " + " | ".join(format(v, fmt) for v in values) + " |"
+        assert line in training, line
+
+    def share(c: dict, key: str) -> list[float]:
+        return [100 * a / b for a, b in zip(_gains(c, "EE", "E", key), _gains(c, "EE+3", "E", key),
+                                            strict=True)]
+
+    pair = lambda m, suffix="": s28 / f"pt_shield_pair_{m}{suffix}" / "paper_table.csv"  # noqa: E731
+    rel, rel37 = cells(pair("released")), cells(pair("released", "_s3to7"))
+    row("released, seeds 0-2: EE vs E", _gains(rel, "EE", "E", "rv"), "+.2f")
+    row("released, seeds 0-2: EE+3 vs E", _gains(rel, "EE+3", "E", "rv"), "+.2f")
+    row("released, seeds 0-2: share of EE+3 [%]", share(rel, "rv"), ".0f")
+    row("released, seeds 0-2, session 27's edge: share of EE+3 [%]",
+        share(cells(s27 / "pt_area" / "paper_table.csv"), "rv"), ".0f")
+    row("released, seeds 0-2, the seed-1 edge: share of EE+3 [%]",
+        share(cells(pair("released"), s28 / "pt_percol_released_seed1" / "paper_table.csv"), "rv"),
+        ".0f")
+    row("released, seeds 3-7: share of EE+3 [%]", share(rel37, "rv"), ".0f")
+    row("released, seeds 0-2: EEC vs E", _gains(rel, "EEC", "E", "rv"), "+.2f")
+    row("released, seeds 0-2: EEC vs EE", _gains(rel, "EEC", "EE", "rv"), "+.2f")
+    default, default37 = cells(pair("default")), cells(pair("default", "_s3to7"))
+    row("default, seeds 0-2: EE vs E", _gains(default, "EE", "E", "v"), "+.2f")
+    row("default, seeds 0-2: share of EE+3 [%]", share(default, "v"), ".0f")
+    row("default, seeds 0-2, session 27's edge: share of EE+3 [%]",
+        share(cells(s27 / "pt_paper_area" / "paper_table.csv"), "v"), ".0f")
+    row("default, seeds 3-7: share of EE+3 [%]", share(default37, "v"), ".0f")
+    row("default, seeds 0-2: EEC vs EE", _gains(default, "EEC", "EE", "v"), "+.2f")
