@@ -325,3 +325,23 @@ def test_shipped_shield_edge_table_in_training_doc():
         ".0f")
     row("default, seeds 3-7: share of EE+3 [%]", share(default37, "v"), ".0f")
     row("default, seeds 0-2: EEC vs EE", _gains(default, "EEC", "EE", "v"), "+.2f")
+
+
+def test_td3_learner_cost_in_training_doc():
+    """docs/training.md's TD3 cost: the median fps_optim of the committed session-28 logs."""
+    import csv
+    import statistics
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    s28 = ROOT / "docs" / "results" / "training" / "session28"
+
+    def median_fps(run: str) -> str:
+        with (s28 / run / "train_log.csv").open() as fh:
+            values = [float(r["fps_optim"]) for r in csv.DictReader(fh)
+                      if r["fps_optim"] not in ("", "nan") and float(r["fps_optim"]) > 0]
+        return f"{statistics.median(values):.0f}"
+
+    td3 = [median_fps(f"edge_{m}_shield_td3") for m in ("released", "paper")]
+    ddpg = [median_fps(f"edge_{m}_shield_area_percol") for m in ("released", "paper")]
+    assert (f"was {td3[0]} / {td3[1]} with TD3 (released / default model) against "
+            f"{ddpg[0]} / {ddpg[1]} with DDPG") in training
