@@ -249,6 +249,10 @@ def test_exploration_table_in_training_doc():
          "session28/edge_released_shield_area_percol_seed2", 60_000),
         ("released, per-column noise 1.0 -> 0.3, seed 1 continued, 120 000 frames",
          "session28/edge_released_shield_area_percol_seed1_120k", 120_000),
+        ("released, per-column noise 1.0 -> 0.5, seed 1, 60 000 frames",
+         "session28/edge_released_shield_area_percol05_seed1", 60_000),
+        ("released, per-column noise 1.0 -> 0.5, seed 2, 60 000 frames",
+         "session28/edge_released_shield_area_percol05_seed2", 60_000),
         ("default, session 27's shield edge, 60 000 frames",
          "session27/edge_paper_shield_sv0_area", 60_000),
         ("default, per-column noise 1.0 -> 0.3, seed 0, 60 000 frames",
@@ -312,6 +316,10 @@ def test_shipped_shield_edge_table_in_training_doc():
     row("released, seeds 0-2, the seed-1 edge at 120 000 frames: share of EE+3 [%]",
         share(cells(pair("released"), s28 / "pt_percol_released_seed1_120k" / "paper_table.csv"),
               "rv"), ".0f")
+    for n in (1, 2):
+        row(f"released, seeds 0-2, the seed-{n} edge, noise 1.0 -> 0.5: share of EE+3 [%]",
+            share(cells(pair("released"),
+                        s28 / f"pt_percol05_released_seed{n}" / "paper_table.csv"), "rv"), ".0f")
     row("released, seeds 3-7: share of EE+3 [%]", share(rel37, "rv"), ".0f")
     row("released, seeds 0-2: EEC vs E", _gains(rel, "EEC", "E", "rv"), "+.2f")
     row("released, seeds 0-2: EEC vs EE", _gains(rel, "EEC", "EE", "rv"), "+.2f")
