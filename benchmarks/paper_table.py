@@ -72,7 +72,7 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
     from mivecc_agents.evaluation import evaluate_batch
-    from mivecc_agents.policies import constant_policy, pretrained_policies
+    from mivecc_agents.policies import ceiling_policy, pretrained_policies
 
     (scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period,
      overrides) = job
@@ -82,8 +82,7 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     run_scheme = scheme
     if scheme in CEILINGS:
         run_scheme, kind = CEILINGS[scheme]
-        k = getattr(config, f"k_{kind}")
-        policies[kind] = constant_policy(kind, 3.0, k)
+        policies[kind] = ceiling_policy(kind, config)
     # a learned cloud decides at the period it was trained with (evaluate_batch adopts it),
     # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both
     extra = {"cloud_period": cloud_period} if cloud_period and run_scheme == "EEC" else {}

@@ -24,8 +24,10 @@ from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, network_
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor_net
 
 __all__ = [
+    "CEILING_ACCEL_MPS2",
     "PRETRAINED_DIR",
     "Policy",
+    "ceiling_policy",
     "check_policy_config",
     "constant_policy",
     "load_policy",
@@ -233,3 +235,14 @@ def constant_policy(kind: str, accel_mps2: float, grid_size: int) -> Policy:
     policy.checkpoint = f"constant {accel_mps2:+g} m/s^2"  # type: ignore[attr-defined]
     policy.config = {}  # type: ignore[attr-defined]
     return policy
+
+
+#: The action of the constant-action ceilings EE+3 and EEC+3 [m/s^2].
+CEILING_ACCEL_MPS2 = 3.0
+
+
+def ceiling_policy(kind: str, config: Any) -> Policy:
+    """The constant-action ceiling of a coordinator kind: :func:`constant_policy` at
+    :data:`CEILING_ACCEL_MPS2`, sized to the config's ``k_edge`` / ``k_cloud`` (used by
+    ``benchmarks/paper_table.py`` and the training's periodic evaluation)."""
+    return constant_policy(kind, CEILING_ACCEL_MPS2, getattr(config, f"k_{kind}"))

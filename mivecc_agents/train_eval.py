@@ -33,14 +33,12 @@ import numpy as np
 import torch
 
 from mivecc_agents.evaluation import Policy, evaluate_batch
-from mivecc_agents.policies import actor_policy, constant_policy
+from mivecc_agents.policies import actor_policy, ceiling_policy
 
 #: Columns of ``eval_log.csv``.
 EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
                "collisions", "baseline_collisions", "metric", "seeds", "steps", "ceiling_mps",
                "ceiling_gain_pct")
-#: The constant action of the ceiling [m/s^2].
-CEILING_ACCEL_MPS2 = 3.0
 
 
 class PeriodicEvaluation:
@@ -103,8 +101,7 @@ class PeriodicEvaluation:
         """The scheme's policies with the trained kind's replaced by the constant +3 one."""
         from mivecc_env.config import from_overrides
 
-        k = getattr(from_overrides(**self._overrides), f"k_{self.kind}")
-        policies = {self.kind: constant_policy(self.kind, CEILING_ACCEL_MPS2, k)}
+        policies = {self.kind: ceiling_policy(self.kind, from_overrides(**self._overrides))}
         if self._edge is not None:
             policies["edge"] = self._edge
         return policies
