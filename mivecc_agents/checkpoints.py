@@ -21,7 +21,8 @@ key                    content
 ``optimizer``          Adam state dict
 ``frames``             environment frames collected so far
 ``updates``            gradient updates done so far
-``metrics``            last logged metrics (dict of floats)
+``metrics``            last logged metrics (dict of floats; a best-policy checkpoint adds its
+                       ``eval_select`` rule by name)
 ``extra``              free-form (e.g. the edge checkpoint used in stage II)
 =====================  ==============================================================
 

@@ -23,7 +23,7 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Literal
 
-from mivecc_env.config import MiVeCCConfig, Range, check_range
+from mivecc_env.config import MiVeCCConfig, Range, check_range, field_range
 
 __all__ = [
     "DEFAULT_PRESET",
@@ -91,6 +91,12 @@ class TrainPreset:
         eval_steps: Steps of each evaluation episode.
         eval_seeds: Evaluation seeds per density (seeds ``EVAL_SEED0, EVAL_SEED0 + 1, ...``,
             apart from the training seeds).
+        eval_rows, eval_cols: Grid of the periodic evaluation (``None``: the training grid),
+            e.g. the 3x3 grid of the paper's table for an edge trained on 1x1.
+        eval_select: Which evaluation ``<stage>_best.pt`` keeps: ``"mean_gain"``, the
+            highest mean gain over the densities [%]; ``"min_ceiling_share"``, the highest
+            smallest share of the constant +3 ceiling's gain over the densities [%] (the
+            policy's weakest density measured against what a constant action reaches there).
         actor_preact_bound: Keep the actor's pre-tanh outputs ``z`` within this bound by adding
             ``actor_preact_weight x`` the mean squared excess ``max(|z| - bound, 0)^2`` to the
             loss (:func:`mivecc_agents.learner.preactivation_penalty`); ``None``: no penalty
@@ -144,6 +150,9 @@ class TrainPreset:
     eval_every_frames: int = 0
     eval_steps: int = 1500
     eval_seeds: int = 1
+    eval_rows: int | None = None
+    eval_cols: int | None = None
+    eval_select: Literal["mean_gain", "min_ceiling_share"] = "mean_gain"
     actor_preact_bound: float | None = None
     actor_preact_weight: float = 1.0
     actor_init_action: float | None = None
@@ -208,12 +217,15 @@ _FIELD_RANGES: dict[str, Range] = {
     "eval_every_frames": Range(0, math.inf, integer=True),
     "eval_steps": Range(1, math.inf, integer=True),
     "eval_seeds": Range(1, math.inf, integer=True),
+    "eval_rows": field_range("rows"),
+    "eval_cols": field_range("cols"),
     "actor_init_action": Range(-3.0, 3.0, lo_open=True, hi_open=True),
     "td3_target_noise": Range(0.0, math.inf),
     "td3_noise_clip": Range(0.0, math.inf),
     "td3_policy_delay": Range(1, math.inf, integer=True),
 }
-_OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm", "actor_init_action")
+_OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm", "actor_init_action", "eval_rows",
+                    "eval_cols")
 
 
 PRESETS: dict[str, TrainPreset] = {

@@ -9,7 +9,8 @@ fixed seeds, beside the scheme without it, and logs the gain:
 * stage II (cloud): ``EEC`` with the actor and the frozen stage-I edge vs ``EE`` with that edge.
 
 Each evaluation is one batch of ``len(densities) x len(seeds)`` environments
-(:func:`~mivecc_agents.evaluation.evaluate_batch`) of ``steps`` steps on the training grid, with
+(:func:`~mivecc_agents.evaluation.evaluate_batch`) of ``steps`` steps on the training grid (or
+the preset's ``eval_rows`` x ``eval_cols``), with
 the user's env fields (``--set``) but none of the preset's training-only fields (its reward form
 and training-time edge selection). The metric is the average travel velocity [m/s], or the
 released-style velocity (455 m metric) under ``model="released"``. Rows go to
@@ -19,7 +20,8 @@ Once per run the stage's constant-action ceiling is evaluated on the same seeds:
 with the trained coordinator replaced by one that always outputs +3 m/s^2 (``EE+3`` /
 ``EEC+3`` of ``benchmarks/paper_table.py``; the cloud at the run's ``cloud_period``). Its
 velocity and gain are in every row (``ceiling_mps``, ``ceiling_gain_pct``) and dashed in the
-curve, so the curve shows how much of that gain the policy realises.
+curve, so the curve shows how much of that gain the policy realises; ``ceiling_share_pct`` is
+that share, ``100 x gain_pct / ceiling_gain_pct`` (NaN where the ceiling gains nothing).
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from __future__ import annotations
 import csv
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -38,7 +40,20 @@ from mivecc_agents.policies import actor_policy, ceiling_policy
 #: Columns of ``eval_log.csv``.
 EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
                "collisions", "baseline_collisions", "metric", "seeds", "steps", "ceiling_mps",
-               "ceiling_gain_pct")
+               "ceiling_gain_pct", "ceiling_share_pct")
+
+
+class EvalScores(NamedTuple):
+    """What one evaluation scores, over its densities.
+
+    Attributes:
+        mean_gain_pct: Mean gain over the baseline [%].
+        min_ceiling_share_pct: Smallest share of the ceiling's gain realised [%] (NaN where
+            no density's ceiling gains anything).
+    """
+
+    mean_gain_pct: float
+    min_ceiling_share_pct: float
 
 
 class PeriodicEvaluation:
@@ -46,7 +61,7 @@ class PeriodicEvaluation:
 
     Args:
         stage: ``"edge"`` or ``"cloud"``.
-        rows, cols: training grid.
+        rows, cols: evaluation grid (the training grid unless the preset names another).
         densities: [veh/lane/h].
         seeds: evaluation seeds (each density runs every seed).
         steps: steps per evaluation episode.
@@ -115,11 +130,11 @@ class PeriodicEvaluation:
                              float(sum(r["collisions"] for r in mine)))
         return out
 
-    def __call__(self, actor_net: torch.nn.Module, frames: int, updates: int) -> float:
+    def __call__(self, actor_net: torch.nn.Module, frames: int, updates: int) -> EvalScores:
         """Evaluate the actor now, append its rows to the log, redraw the curve.
 
         Returns:
-            The mean gain over the densities [%].
+            The mean gain and the smallest ceiling share over the densities.
         """
         policies = {self.kind: actor_policy(actor_net, self.kind)}
         if self._edge is not None:
@@ -128,23 +143,32 @@ class PeriodicEvaluation:
             evaluate_batch(self.scheme, **self._args, policies=policies, progress=False,
                            warn=False, **self._overrides)
         )
-        gains = []
+        gains, shares = [], []
         with self.csv_path.open("a", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=self._fields, extrasaction="ignore")
             for d, (v, coll) in now.items():
                 base, base_coll = self.baseline[d]
                 gain, ceiling_gain = _gain_pct(v, base), _gain_pct(self.ceiling[d][0], base)
+                share = 100.0 * gain / ceiling_gain if ceiling_gain > 0 else float("nan")
                 gains.append(gain)
+                shares.append(share)
                 writer.writerow({"frames": frames, "updates": updates, "density": d,
                                  "velocity_mps": v, "baseline_mps": base, "gain_pct": gain,
                                  "collisions": coll, "baseline_collisions": base_coll,
                                  "metric": self.metric, "seeds": len(self._args["seeds"]),
                                  "steps": self._args["steps"],
                                  "ceiling_mps": self.ceiling[d][0],
-                                 "ceiling_gain_pct": ceiling_gain})
+                                 "ceiling_gain_pct": ceiling_gain,
+                                 "ceiling_share_pct": share})
         plot_eval_curve(self.csv_path, self.png_path,
                         f"{self.scheme} vs {'E' if self.stage == 'edge' else 'EE'}")
-        return float(np.nanmean(gains))
+        return EvalScores(_over_numbers(np.mean, gains), _over_numbers(np.min, shares))
+
+
+def _over_numbers(reduce: Any, values: list[float]) -> float:
+    """``reduce`` (``np.mean``, ``np.min``) of the values that are not NaN; NaN if none is."""
+    finite = [x for x in values if not np.isnan(x)]
+    return float(reduce(finite)) if finite else float("nan")
 
 
 def _gain_pct(velocity_mps: float, baseline_mps: float) -> float:

@@ -834,24 +834,28 @@ def _train(
                                     out_dir, edge_ckpt_path, append=append_logs)
     next_eval, last_eval = state["frames"], None
     best_path = out_dir / f"{stage}_best.pt"  # the policy of the best evaluation so far
-    best_gain = _best_gain(best_path) if append_logs else -math.inf
+    best_score = _best_score(best_path, p.eval_select) if append_logs else -math.inf
 
     def _maybe_evaluate(final: bool = False) -> None:
         """Evaluate when due; ``final``: unless the current weights were just evaluated."""
-        nonlocal next_eval, last_eval, best_gain
+        nonlocal next_eval, last_eval, best_score
         due = state["frames"] != last_eval if final else state["frames"] >= next_eval
         if evaluate is None or not due:
             return
         last_eval = state["frames"]
-        gain = evaluate(actor.module, state["frames"], state["updates"])
-        if gain > best_gain:  # NaN (no baseline velocity) never counts as better
-            best_gain = gain
-            _save({"eval_gain_pct": gain}, best_path, slim=True)
+        scores = evaluate(actor.module, state["frames"], state["updates"])
+        score = _selection_score(scores, p.eval_select)
+        if score > best_score:  # NaN (no baseline velocity) never counts as better
+            best_score = score
+            _save({"eval_gain_pct": scores.mean_gain_pct,
+                   "eval_min_ceiling_share_pct": scores.min_ceiling_share_pct,
+                   "eval_select": p.eval_select, "eval_score": score}, best_path, slim=True)
         if progress:
             import sys
 
-            bar.write(f"eval at {state['frames']} frames: {evaluate.scheme} gain {gain:+.2f} %",
-                      file=sys.stderr)
+            bar.write(f"eval at {state['frames']} frames: {evaluate.scheme} gain "
+                      f"{scores.mean_gain_pct:+.2f} %, at least "
+                      f"{scores.min_ceiling_share_pct:.0f} % of the +3 ceiling's", file=sys.stderr)
         next_eval = state["frames"] + p.eval_every_frames
 
     metrics: dict[str, float] = {}
@@ -950,11 +954,21 @@ def _train(
     return path
 
 
-def _best_gain(path: Path) -> float:
-    """The evaluation gain [%] a run's best-policy checkpoint records (``-inf``: none yet)."""
+def _selection_score(scores: Any, select: str) -> float:
+    """The number ``eval_select`` ranks evaluations by (higher is better) [%]."""
+    return scores.mean_gain_pct if select == "mean_gain" else scores.min_ceiling_share_pct
+
+
+def _best_score(path: Path, select: str) -> float:
+    """The ``select`` score [%] a run's best-policy checkpoint records (``-inf``: none yet,
+    or it was picked by another rule; a checkpoint from before ``eval_select`` existed was
+    picked by the mean gain)."""
     if not path.exists():
         return -math.inf
-    return float(load_checkpoint(path)["metrics"].get("eval_gain_pct", -math.inf))
+    metrics = load_checkpoint(path)["metrics"]
+    if metrics.get("eval_select", "mean_gain") != select:
+        return -math.inf
+    return float(metrics.get("eval_score", metrics.get("eval_gain_pct", -math.inf)))
 
 
 def _periodic_evaluation(
@@ -969,6 +983,7 @@ def _periodic_evaluation(
     from mivecc_agents.train_eval import PeriodicEvaluation
 
     edge = load_policy(edge_checkpoint, "edge") if stage == "cloud" else None
+    rows, cols = p.eval_rows or rows, p.eval_cols or cols  # None: the training grid
     return PeriodicEvaluation(
         stage, rows, cols, dens, range(EVAL_SEED0, EVAL_SEED0 + max(1, p.eval_seeds)),
         p.eval_steps, config_overrides, out_dir, edge_policy=edge, append=append,

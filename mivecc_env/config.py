@@ -576,6 +576,16 @@ def check_range(name: str, value: Any, rng: Range, optional: bool = False) -> No
 
 FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MiVeCCConfig))
 
+
+def field_range(name: str) -> Range:
+    """The allowed range of the numeric config field ``name`` (``KeyError``: no such field,
+    or not a numeric one)."""
+    f = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}[name]
+    rng = f.metadata.get("range")
+    if rng is None:
+        raise KeyError(f"{name}: not a numeric configuration field")
+    return rng
+
 #: Short keyword aliases accepted by :func:`from_overrides` (``density`` is in veh/lane/h;
 #: ``max_cycles`` is PettingZoo's keyword for the episode length).
 ALIASES: dict[str, str] = {"density": "density_vplh", "max_cycles": "max_steps"}

@@ -19,7 +19,6 @@ Accounting invariant, per environment, after every step:
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from collections.abc import Sequence
@@ -28,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from mivecc_env.config import MiVeCCConfig
+from mivecc_env.config import MiVeCCConfig, field_range
 from mivecc_env.sim import (
     checks,
     controllers,
@@ -705,7 +704,7 @@ def _checked_densities(
     if d.shape != (batch,):
         raise ValueError(f"densities: expected shape ({batch},) (one per environment), "
                          f"got {d.shape}")
-    rng = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}["density_vplh"].metadata["range"]
+    rng = field_range("density_vplh")
     bad = [i for i, x in enumerate(d.tolist()) if not (math.isfinite(x) and rng.contains(x))]
     if bad:
         raise ValueError(f"densities: each must be {rng.describe()} veh/lane/h, "

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 
+import numpy as np
 import pytest
 
 pytest.importorskip("torchrl")
@@ -43,6 +44,9 @@ def test_edge_training_logs_deterministic_evaluations(tmp_path):
     assert float(last["ceiling_mps"]) == pytest.approx(mean(ceiling), rel=1e-12)
     assert float(last["ceiling_gain_pct"]) == pytest.approx(
         100 * (mean(ceiling) / mean(e) - 1), rel=1e-9)
+    for r in rows:  # the share of the ceiling's gain the policy realises
+        assert float(r["ceiling_share_pct"]) == pytest.approx(
+            100 * float(r["gain_pct"]) / float(r["ceiling_gain_pct"]), rel=1e-12)
     # edge_best.pt holds the policy of the best evaluation (mean gain over the densities)
     best_row = max(rows, key=lambda r: float(r["gain_pct"]))  # one density: the row's gain
     best = load_checkpoint(tmp_path / "edge_best.pt")
@@ -53,10 +57,62 @@ def test_edge_training_logs_deterministic_evaluations(tmp_path):
     assert mean(best_ee) == pytest.approx(float(best_row["velocity_mps"]), rel=1e-12)
     assert "optimizer" not in best and "loss" not in best  # slim, as the shipped exports
     # a resumed run starts from the recorded best, a fresh run from nothing
-    from mivecc_agents.training import _best_gain
+    from mivecc_agents.training import _best_score
 
-    assert _best_gain(tmp_path / "edge_best.pt") == best["metrics"]["eval_gain_pct"]
-    assert _best_gain(tmp_path / "absent.pt") == float("-inf")
+    assert best["metrics"]["eval_select"] == "mean_gain"
+    assert _best_score(tmp_path / "edge_best.pt", "mean_gain") == best["metrics"]["eval_gain_pct"]
+    assert _best_score(tmp_path / "edge_best.pt", "min_ceiling_share") == float("-inf")
+    assert _best_score(tmp_path / "absent.pt", "mean_gain") == float("-inf")
+
+
+def test_evaluation_on_another_grid_keeps_the_policy_with_the_best_ceiling_share(tmp_path):
+    """``eval_rows`` x ``eval_cols`` replace the training grid in the evaluation, and
+    ``eval_select=min_ceiling_share`` keeps the policy whose weakest density realises the
+    largest share of the constant +3 edge's gain."""
+    preset = preset_with(TINY, {"eval_every_frames": "50", "eval_steps": "300",
+                                "eval_rows": "1", "eval_cols": "2",
+                                "eval_select": "min_ceiling_share"})
+    train_tiny_edge(tmp_path, preset=preset)
+    with (tmp_path / "eval_log.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["frames"]) for r in rows] == [0, 100, 200]  # iterations of 100 frames
+    e = evaluate_batch("E", 1, 2, 1500, 300, [EVAL_SEED0], progress=False)[0]
+    assert float(rows[0]["baseline_mps"]) == pytest.approx(e["avg_travel_velocity_mps"],
+                                                           rel=1e-12)
+    shares = [float(r["ceiling_share_pct"]) for r in rows]
+    best_row = rows[shares.index(max(shares))]
+    best = load_checkpoint(tmp_path / "edge_best.pt")
+    assert best["frames"] == int(best_row["frames"])
+    assert best["metrics"]["eval_select"] == "min_ceiling_share"
+    assert best["metrics"]["eval_score"] == pytest.approx(max(shares))
+    from mivecc_agents.training import _best_score
+
+    assert _best_score(tmp_path / "edge_best.pt", "min_ceiling_share") == pytest.approx(
+        max(shares))
+
+
+def test_the_rules_rank_evaluations_differently():
+    from mivecc_agents.train_eval import EvalScores
+    from mivecc_agents.training import _selection_score
+
+    higher_mean, steadier = EvalScores(3.0, 80.0), EvalScores(2.5, 95.0)
+    assert _selection_score(higher_mean, "mean_gain") > _selection_score(steadier, "mean_gain")
+    assert (_selection_score(steadier, "min_ceiling_share")
+            > _selection_score(higher_mean, "min_ceiling_share"))
+
+
+def test_the_smallest_share_is_over_the_densities_whose_ceiling_gains():
+    from mivecc_agents.train_eval import _over_numbers
+
+    assert _over_numbers(np.min, [95.0, float("nan"), 101.0]) == 95.0
+    assert np.isnan(_over_numbers(np.min, [float("nan")]))
+
+
+@pytest.mark.parametrize(("field", "value"), [("eval_rows", "0"), ("eval_cols", "17"),
+                                              ("eval_rows", "1.5"), ("eval_select", "best")])
+def test_evaluation_grid_and_rule_are_checked(field, value):
+    with pytest.raises(ValueError, match=field):
+        preset_with("released", {field: value})
 
 
 def test_a_resumed_log_of_an_older_version_keeps_its_columns(tmp_path):
