@@ -40,7 +40,7 @@ from mivecc_agents.policies import actor_policy, ceiling_policy
 #: Columns of ``eval_log.csv``.
 EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
                "collisions", "baseline_collisions", "metric", "seeds", "steps", "ceiling_mps",
-               "ceiling_gain_pct", "ceiling_share_pct")
+               "ceiling_gain_pct", "ceiling_share_pct", "grid")
 
 
 class EvalScores(NamedTuple):
@@ -87,6 +87,7 @@ class PeriodicEvaluation:
         self.stage = stage
         self.scheme, base_scheme = ("EE", "E") if stage == "edge" else ("EEC", "EE")
         self.kind = "edge" if stage == "edge" else "cloud"
+        self.grid = f"{rows}x{cols}"
         self._args = dict(rows=rows, cols=cols, densities=list(densities), steps=int(steps),
                           seeds=list(seeds))
         self._overrides = {k: v for k, v in config_overrides.items() if k != "max_steps"}
@@ -159,9 +160,9 @@ class PeriodicEvaluation:
                                  "steps": self._args["steps"],
                                  "ceiling_mps": self.ceiling[d][0],
                                  "ceiling_gain_pct": ceiling_gain,
-                                 "ceiling_share_pct": share})
+                                 "ceiling_share_pct": share, "grid": self.grid})
         plot_eval_curve(self.csv_path, self.png_path,
-                        f"{self.scheme} vs {'E' if self.stage == 'edge' else 'EE'}")
+                        f"{self.scheme} vs {'E' if self.stage == 'edge' else 'EE'} on {self.grid}")
         return EvalScores(_over_numbers(np.mean, gains), _over_numbers(np.min, shares))
 
 

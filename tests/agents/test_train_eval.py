@@ -79,6 +79,7 @@ def test_evaluation_on_another_grid_keeps_the_policy_with_the_best_ceiling_share
     e = evaluate_batch("E", 1, 2, 1500, 300, [EVAL_SEED0], progress=False)[0]
     assert float(rows[0]["baseline_mps"]) == pytest.approx(e["avg_travel_velocity_mps"],
                                                            rel=1e-12)
+    assert {r["grid"] for r in rows} == {"1x2"}
     shares = [float(r["ceiling_share_pct"]) for r in rows]
     best_row = rows[shares.index(max(shares))]
     best = load_checkpoint(tmp_path / "edge_best.pt")
