@@ -131,3 +131,16 @@ def test_a_resumed_log_of_an_older_version_keeps_its_columns(tmp_path):
     with (tmp_path / "eval_log.csv").open() as fh:
         rows = list(csv.reader(fh))
     assert rows[0] == list(old) and len(rows) == 2 and len(rows[1]) == len(old)
+
+
+def test_evaluating_does_not_change_what_is_learned(tmp_path):
+    """The periodic evaluation (here on another grid) draws nothing from the training's
+    generators: the final actor equals the one of a run without it, weight for weight."""
+    import torch
+
+    plain = train_tiny_edge(tmp_path / "plain")
+    evaluated = train_tiny_edge(tmp_path / "evaluated", preset=preset_with(
+        TINY, {"eval_every_frames": "100", "eval_steps": "100", "eval_rows": "2"}))
+    a, b = (load_checkpoint(p)["actor"] for p in (plain, evaluated))
+    assert a.keys() == b.keys()
+    assert all(torch.equal(a[k], b[k]) for k in a)
