@@ -275,30 +275,39 @@ def test_exploration_table_in_training_doc():
                                 "ceiling_gain_pct")) == ceilings["released"]
 
 
+def _merged_cells(*paths: Path) -> dict:
+    """:func:`_cells` of several paper_table CSVs, a later file's run replacing an earlier
+    one's (as ``paper_targets.py`` merges them)."""
+    runs = {}
+    for row in (row for p in paths for row in read_runs_csv(p)):
+        runs[(row["scheme"], row["density"], row["seed"])] = row
+    rows = list(runs.values())
+    out = summarise(rows, "3x3")[1]
+    for (scheme, d), cell in out.items():
+        cell["rv"] = float(np.mean([x["released_velocity_mps"] for x in rows
+                                    if (x["scheme"], x["density"]) == (scheme, d)]))
+    return out
+
+
+def _ceiling_share(c: dict, key: str) -> list[float]:
+    """The share of the +3 edge's gain over E that EE realises, per density [%]."""
+    return [100 * a / b for a, b in zip(_gains(c, "EE", "E", key), _gains(c, "EE+3", "E", key),
+                                        strict=True)]
+
+
+def _assert_row(text: str, label: str, values: list[float], fmt: str) -> None:
+    line = f"| {label} | " + " | ".join(format(v, fmt) for v in values) + " |"
+    assert line in text, line
+
+
 def test_shipped_shield_edge_table_in_training_doc():
     """docs/training.md's 3x3 table of the session-28 shield edges, from the committed runs."""
     training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
     s27, s28 = (ROOT / "docs" / "results" / "training" / f"session{n}" for n in (27, 28))
-
-    def cells(*paths: Path) -> dict:
-        merged = [row for p in paths for row in read_runs_csv(p)]
-        tmp = {}
-        for row in merged:  # a later file's run replaces an earlier one's
-            tmp[(row["scheme"], row["density"], row["seed"])] = row
-        rows = list(tmp.values())
-        out = summarise(rows, "3x3")[1]
-        for (scheme, d), cell in out.items():
-            cell["rv"] = float(np.mean([x["released_velocity_mps"] for x in rows
-                                        if (x["scheme"], x["density"]) == (scheme, d)]))
-        return out
+    cells, share = _merged_cells, _ceiling_share
 
     def row(label: str, values: list[float], fmt: str) -> None:
-        line = f"| {label} | " + " | ".join(format(v, fmt) for v in values) + " |"
-        assert line in training, line
-
-    def share(c: dict, key: str) -> list[float]:
-        return [100 * a / b for a, b in zip(_gains(c, "EE", "E", key), _gains(c, "EE+3", "E", key),
-                                            strict=True)]
+        _assert_row(training, label, values, fmt)
 
     pair = lambda m, suffix="": s28 / f"pt_shield_pair_{m}{suffix}" / "paper_table.csv"  # noqa: E731
     rel, rel37 = cells(pair("released")), cells(pair("released", "_s3to7"))
@@ -348,3 +357,90 @@ def test_td3_learner_cost_in_training_doc():
     ddpg = [median_fps(f"edge_{m}_shield_area_percol") for m in ("released", "paper")]
     assert (f"was {td3[0]} / {td3[1]} with TD3 (released / default model) against "
             f"{ddpg[0]} / {ddpg[1]} with DDPG") in training
+
+
+#: docs/training.md's session-29 share table: label -> (session, paper_table folder); each
+#: EE run is merged over the shipped pair's E and EE+3 runs (session 28).
+SESSION29_EDGES = {
+    "session 28, seed 0 (shipped)": ("session28", "pt_shield_pair_released"),
+    "session 28, seed 1": ("session28", "pt_percol_released_seed1"),
+    "session 28, seed 2": ("session28", "pt_percol_released_seed2"),
+    "1. four densities, seed 0 (60 000 frames)": ("session29", "pt_lowd_seed0_edge"),
+    "1. four densities, seed 1, best (30 000 frames)": ("session29", "pt_lowd_seed1_edge_best"),
+    "1. four densities, seed 1, final (60 000 frames)": ("session29", "pt_lowd_seed1_edge"),
+    "2. picked on 3x3, seed 1 (40 800 frames)": ("session29", "pt_sel3x3_seed1_best"),
+    "2. picked on 3x3, seed 2 (60 000 frames)": ("session29", "pt_sel3x3_seed2_best"),
+    "3. linear learning rates, seed 1 (60 000 frames)": ("session29", "pt_linlr_seed1_best"),
+    "3. linear learning rates, seed 2 (30 600 frames)": ("session29", "pt_linlr_seed2_best"),
+}
+
+
+def session29_share_rows() -> list[tuple[str, list[float]]]:
+    """(label, share per density [%]) of :data:`SESSION29_EDGES`."""
+    training = ROOT / "docs" / "results" / "training"
+    pair = training / "session28" / "pt_shield_pair_released" / "paper_table.csv"
+    return [(label, _ceiling_share(_merged_cells(pair, training / s / f / "paper_table.csv"),
+                                   "rv"))
+            for label, (s, f) in SESSION29_EDGES.items()]
+
+
+def test_session29_edge_table_in_training_doc():
+    training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    for label, shares in session29_share_rows():
+        _assert_row(training, label, shares, ".0f")
+
+
+def test_session29_figures_in_training_doc():
+    """The critic check, the evaluation cost and the per-column cloud of session 29."""
+    import csv
+    import statistics
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    s29 = ROOT / "docs" / "results" / "training" / "session29"
+    check = (s29 / "edge_critic_check_percol_seed2.md").read_text(encoding="utf-8")
+
+    def probe(name: str, column: int) -> str:
+        line = next(x for x in check.splitlines() if x.startswith(f"| {name} |"))
+        return line.split("|")[column].strip()
+
+    assert probe("actor: share of actions within 0.01 of +3", 3) == "51 %"
+    assert probe("actor: mean action [m/s^2]", 2) == "+2.20060"
+    assert probe("constant +3", 3) == "24 %"
+    assert "state_dependent (15 columns)" in check
+    assert ("51 % of its actions are within 0.01 of +3 (seed 0: 93 %), its mean action is "
+            "+2.20 m/s^2, and it rates +3 above its own action in 24 % of 3600 states") in training
+    # the evaluation cost on 3x3: the iteration after each evaluation against the median one
+    extra, medians = [], []
+    for seed in (1, 2):
+        run = s29 / f"edge_released_shield_sel3x3_seed{seed}"
+        with (run / "train_log.csv").open() as fh:
+            rows = [(int(r["frames"]), float(r["wall_s"])) for r in csv.DictReader(fh)]
+        with (run / "eval_log.csv").open() as fh:
+            evaluated = {int(r["frames"]) for r in csv.DictReader(fh)}
+        step = {rows[i][0]: rows[i][1] - rows[i - 1][1] for i in range(1, len(rows))}
+        median = statistics.median(step.values())
+        medians.append(median)
+        extra += [step[rows[i + 1][0]] - median for i in range(len(rows) - 1)
+                  if rows[i][0] in evaluated]
+    assert (f"took {min(extra):.0f}-{max(extra):.0f} s longer than the median iteration "
+            f"({min(medians):.1f}-{max(medians):.1f} s)") in training
+    # the per-column cloud: its evaluations, and its verdict against the +3 cloud
+    with (s29 / "cloud_released_shield_percol" / "eval_log.csv").open() as fh:
+        log = list(csv.DictReader(fh))
+    for frames in (30000, 60000, 90000):
+        gains = " / ".join(f"{float(r['gain_pct']):+.2f}" for r in log
+                           if int(r["frames"]) == frames)
+        assert f"{gains} %" in training, gains
+    ceiling = " / ".join(f"{float(r['ceiling_gain_pct']):+.2f}" for r in log
+                         if int(r["frames"]) == 0)
+    assert f"(the +3 cloud: {ceiling} %)" in training
+    from tests.scripts import load_benchmark
+
+    targets = load_benchmark("paper_targets")
+    table = targets.main(["--column", "per-column cloud",
+                          str(ROOT / "docs/results/training/session28/pt_shield_pair_released"
+                                     "/paper_table.csv"),
+                          str(s29 / "pt_cloud_percol_best" / "paper_table.csv")])
+    line = next(x for x in table.splitlines() if "constant +3 cloud" in x)
+    cloud = line.split("|")[2].strip()
+    assert cloud in training, cloud
