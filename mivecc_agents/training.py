@@ -814,7 +814,7 @@ def _train(
         },
     }
 
-    def _save(metrics: dict[str, float], path: Path = ckpt_path, slim: bool = False) -> Path:
+    def _save(metrics: dict[str, Any], path: Path = ckpt_path, slim: bool = False) -> Path:
         """The run's checkpoint; ``slim``: without the optimiser and target copies (it loads
         with ``load_policy`` but cannot be resumed)."""
         return save_checkpoint(
