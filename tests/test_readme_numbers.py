@@ -372,6 +372,8 @@ SESSION29_EDGES = {
     "2. picked on 3x3, seed 2 (60 000 frames)": ("session29", "pt_sel3x3_seed2_best"),
     "3. linear learning rates, seed 1 (60 000 frames)": ("session29", "pt_linlr_seed1_best"),
     "3. linear learning rates, seed 2 (30 600 frames)": ("session29", "pt_linlr_seed2_best"),
+    "4. four times the updates, seed 1 (60 000 frames)": ("session29", "pt_upf1_seed1_best"),
+    "4. four times the updates, seed 2 (30 600 frames)": ("session29", "pt_upf1_seed2_best"),
 }
 
 
