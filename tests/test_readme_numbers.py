@@ -370,6 +370,8 @@ SESSION29_EDGES = {
     "1. four densities, seed 1, final (60 000 frames)": ("session29", "pt_lowd_seed1_edge"),
     "2. picked on 3x3, seed 1 (40 800 frames)": ("session29", "pt_sel3x3_seed1_best"),
     "2. picked on 3x3, seed 2 (60 000 frames)": ("session29", "pt_sel3x3_seed2_best"),
+    "2. picked on 3x3, seed 3 (10 200 frames)": ("session29", "pt_sel3x3_seed3_best"),
+    "2. picked on 3x3, seed 4 (30 600 frames)": ("session29", "pt_sel3x3_seed4_best"),
     "3. linear learning rates, seed 1 (60 000 frames)": ("session29", "pt_linlr_seed1_best"),
     "3. linear learning rates, seed 2 (30 600 frames)": ("session29", "pt_linlr_seed2_best"),
     "4. four times the updates, seed 1 (60 000 frames)": ("session29", "pt_upf1_seed1_best"),
@@ -453,3 +455,27 @@ def test_session29_figures_in_training_doc():
     line = next(x for x in table.splitlines() if "constant +3 cloud" in x)
     cloud = line.split("|")[2].strip()
     assert cloud in training, cloud
+
+
+def test_session29_picking_scores_in_training_doc():
+    """The picking evaluation's score (smallest ceiling share over 900 / 1500 / 2100 veh/lane/h
+    on 3x3 seeds 1000-1002) of the shipped seed-0 edge and of the seed 1-4 runs' picks."""
+    import csv
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    s29 = ROOT / "docs" / "results" / "training" / "session29"
+    cells = _merged_cells(s29 / "pt_pick_seed0" / "paper_table.csv")
+    shares = [100 * (cells[("EE", d)]["rv"] / cells[("E", d)]["rv"] - 1)
+              / (cells[("EE+3", d)]["rv"] / cells[("E", d)]["rv"] - 1) for d in (900, 1500, 2100)]
+    picks = []
+    for seed in (1, 2, 3, 4):
+        with (s29 / f"edge_released_shield_sel3x3_seed{seed}" / "eval_log.csv").open() as fh:
+            rows = list(csv.DictReader(fh))
+        by_frames: dict[str, list[float]] = {}
+        for r in rows:
+            by_frames.setdefault(r["frames"], []).append(float(r["ceiling_share_pct"]))
+        picks.append(max(min(v) for v in by_frames.values()))
+    others = " / ".join(f"{x:.1f}" for x in picks)
+    assert (f"is {min(shares):.1f} % for the shipped seed-0 edge and {others} % for the best "
+            "policies of seeds 1 / 2 / 3 / 4") in training
+    assert min(shares) > max(picks)
