@@ -397,7 +397,7 @@ def test_session29_edge_table_in_training_doc():
     others = [round(x) for label, shares in rows if label in ("session 28, seed 1",
                                                               "session 28, seed 2")
               for x in shares]
-    assert (f"seeds 1 and 2 realise {min(others)}-{max(others)} % of its gain"
+    assert (f"Seeds 1 and 2 realise {min(others)}-{max(others)} % of its gain"
             in " ".join(README.split()))
 
 
