@@ -55,6 +55,11 @@ class EvalScores(NamedTuple):
     mean_gain_pct: float
     min_ceiling_share_pct: float
 
+    def score(self, select: str) -> float:
+        """The number the preset's ``eval_select`` ranks evaluations by (higher is better) [%]:
+        ``"mean_gain"`` or ``"min_ceiling_share"``."""
+        return self.mean_gain_pct if select == "mean_gain" else self.min_ceiling_share_pct
+
 
 class PeriodicEvaluation:
     """Evaluate an actor deterministically against its stage's baseline (module docstring).

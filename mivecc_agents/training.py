@@ -844,7 +844,7 @@ def _train(
             return
         last_eval = state["frames"]
         scores = evaluate(actor.module, state["frames"], state["updates"])
-        score = _selection_score(scores, p.eval_select)
+        score = scores.score(p.eval_select)
         if score > best_score:  # NaN (no baseline velocity) never counts as better
             best_score = score
             _save({"eval_gain_pct": scores.mean_gain_pct,
@@ -952,11 +952,6 @@ def _train(
     if stop.requested:
         raise TrainingInterrupted(path, state["frames"])
     return path
-
-
-def _selection_score(scores: Any, select: str) -> float:
-    """The number ``eval_select`` ranks evaluations by (higher is better) [%]."""
-    return scores.mean_gain_pct if select == "mean_gain" else scores.min_ceiling_share_pct
 
 
 def _best_score(path: Path, select: str) -> float:

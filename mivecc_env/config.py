@@ -575,16 +575,17 @@ def check_range(name: str, value: Any, rng: Range, optional: bool = False) -> No
 
 
 FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(MiVeCCConfig))
+_FIELDS_BY_NAME: dict[str, Any] = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}
 
 
 def field_range(name: str) -> Range:
     """The allowed range of the numeric config field ``name`` (``KeyError``: no such field,
     or not a numeric one)."""
-    f = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}[name]
-    rng = f.metadata.get("range")
+    rng = _FIELDS_BY_NAME[name].metadata.get("range")
     if rng is None:
         raise KeyError(f"{name}: not a numeric configuration field")
     return rng
+
 
 #: Short keyword aliases accepted by :func:`from_overrides` (``density`` is in veh/lane/h;
 #: ``max_cycles`` is PettingZoo's keyword for the episode length).
@@ -612,9 +613,8 @@ def from_overrides(base: MiVeCCConfig | None = None, **overrides: Any) -> MiVeCC
             close = difflib.get_close_matches(key, [*FIELD_NAMES, *ALIASES], n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             raise ConfigError(f"{key}: unknown configuration field{hint}")
-        fields_by_name = {f.name: f for f in dataclasses.fields(MiVeCCConfig)}
-        f = fields_by_name[name]
-        if f.metadata.get("range") is not None and f.metadata["range"].integer:
+        rng = _FIELDS_BY_NAME[name].metadata.get("range")
+        if rng is not None and rng.integer:
             if isinstance(value, float) and value.is_integer():
                 value = int(value)
         fixed[name] = value

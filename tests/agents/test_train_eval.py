@@ -94,12 +94,10 @@ def test_evaluation_on_another_grid_keeps_the_policy_with_the_best_ceiling_share
 
 def test_the_rules_rank_evaluations_differently():
     from mivecc_agents.train_eval import EvalScores
-    from mivecc_agents.training import _selection_score
 
     higher_mean, steadier = EvalScores(3.0, 80.0), EvalScores(2.5, 95.0)
-    assert _selection_score(higher_mean, "mean_gain") > _selection_score(steadier, "mean_gain")
-    assert (_selection_score(steadier, "min_ceiling_share")
-            > _selection_score(higher_mean, "min_ceiling_share"))
+    assert higher_mean.score("mean_gain") > steadier.score("mean_gain")
+    assert steadier.score("min_ceiling_share") > higher_mean.score("min_ceiling_share")
 
 
 def test_the_smallest_share_is_over_the_densities_whose_ceiling_gains():
