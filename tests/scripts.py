@@ -18,5 +18,6 @@ def load_benchmark(name: str, module_name: str | None = None) -> ModuleType:
     spec = importlib.util.spec_from_file_location(module_name or name, BENCHMARKS / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # as an import does (dataclasses look their module up)
     spec.loader.exec_module(module)
     return module

@@ -19,6 +19,7 @@ import cloud_reward_check
 import comparison
 import critic_check
 import edge_reward_check
+import headroom_search
 import machine_info
 import near_miss_cost
 import paper_table
@@ -477,3 +478,50 @@ def test_released_reference_counts_each_close_pair_once() -> None:
     assert out["events"] == 1  # close for several steps: one pair, one event
     (_, lane_a, p_a, lane_b, p_b, dist), = out["pairs"].values()
     assert (lane_a, lane_b) == (4, 7) and (p_a, p_b) == (156.0, 145.2) and dist == 1.02
+
+
+def test_headroom_search_family_contains_the_ceiling() -> None:
+    """The searched family's ceiling member acts exactly +3 in real columns, and run as one
+    candidate among others gives the EE+3 scheme's velocity, and each candidate's trajectory
+    does not depend on the others in its batch."""
+    from mivecc_agents.evaluation import evaluate_batch
+    from mivecc_agents.policies import constant_policy
+
+    rng = np.random.default_rng(0)
+    obs = rng.uniform(-1, 1, (2, 4, 15, 15, 3)).astype(np.float32)
+    mask = (rng.uniform(size=(2, 4, 15)) < 0.7).astype(np.float32)
+    thetas = np.vstack([headroom_search.ceiling_theta(), np.zeros(7)])
+    a = headroom_search.linear_actions(obs, mask, thetas)
+    assert np.array_equal(a[0], 3.0 * mask[0]) and np.array_equal(a[1], 0.0 * mask[1])
+    x = headroom_search.column_features(obs)
+    assert x.shape == (2, 4, 15, 7) and np.array_equal(x[..., 1, 3:6], obs[..., 1, 1, :])
+
+    setting = headroom_search.Setting("edge", 1, 1, (900.0, 2100.0), (0,), 300,
+                                      {"model": "released", "safety_shield": True}, None)
+    other = np.array([0.5, -0.5, 0.2, 0.1, 0.0, 0.3, 1.0])
+    v, events = headroom_search.run_batch(setting, np.vstack([other, thetas[0]]))
+    alone, _ = headroom_search.run_batch(setting, thetas[:1])
+    ee3 = evaluate_batch("EE", 1, 1, [900.0, 2100.0], 300, [0], progress=False,
+                         policies={"edge": constant_policy("edge", 3.0, 15)}, model="released",
+                         safety_shield=True)
+    assert v.shape == events.shape == (2, 2, 1)
+    assert np.array_equal(v[1], alone[0])
+    assert v[1, :, 0].tolist() == [r["released_velocity_mps"] for r in ee3]
+    assert not np.array_equal(v[0], v[1])  # another policy, another trajectory
+    base, _ = headroom_search.run_batch(setting, None)
+    share = headroom_search.ceiling_share_pct(v, base, alone)
+    assert np.allclose(share[1], 100.0)
+
+
+def test_headroom_search_writes_its_report(tmp_path: Path) -> None:
+    result = headroom_search.main([
+        "--kind", "cloud", "--grid", "1x1", "--densities", "2100", "--seeds", "1000",
+        "--steps", "400", "--population", "3", "--elite", "2", "--iterations", "2",
+        "--table-seeds", "0", "--table-steps", "100", "--out", str(tmp_path)])
+    assert [h["iteration"] for h in result["history"]] == [1, 2]
+    assert all(h["best_share_pct"] >= h["median_share_pct"] for h in result["history"])
+    assert [r["density"] for r in result["table"]] == list(paper_table.DENSITIES)
+    for name in ("md", "csv", "json", "png"):
+        assert (tmp_path / f"headroom_cloud_released.{name}").stat().st_size > 0
+    text = (tmp_path / "headroom_cloud_released.md").read_text()
+    assert "share of the constant +3 cloud's gain over MiVeCC-EE (shipped edge)" in text
