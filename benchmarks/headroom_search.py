@@ -26,7 +26,8 @@ densities and steps for all), so an iteration costs one batch of ``population x 
 seeds`` environments; the environments are independent, so each candidate's trajectory is the
 one it would have alone.
 
-Usage (3x3, released model, safety shield; about 3 min for the edge, 6 min for the cloud here):
+Usage (3x3, released model, safety shield; 2-7 min for the edge, 5-11 min for the cloud here,
+beside another run; `docs/training.md`, "Is there headroom above the constant +3 coordinators?"):
     python benchmarks/headroom_search.py --kind edge --model released --set safety_shield=true
 """
 

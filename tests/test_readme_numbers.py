@@ -479,3 +479,64 @@ def test_session29_picking_scores_in_training_doc():
     assert (f"is {min(shares):.1f} % for the shipped seed-0 edge and {others} % for the best "
             "policies of seeds 1 / 2 / 3 / 4") in training
     assert min(shares) > max(picks)
+
+
+#: The headroom searches of session 30: table label -> report stem under session30/.
+SESSION30_SEARCHES = {
+    "edge, released model": "headroom_edge/headroom_edge_released",
+    "edge, default model": "headroom_edge_paper/headroom_edge_paper",
+    "cloud, released model": "headroom_cloud/headroom_cloud_released",
+    "cloud, default model": "headroom_cloud_paper/headroom_cloud_paper",
+}
+
+
+def test_session30_headroom_figures_in_training_doc():
+    """The headroom table and its bullets, from the searches' committed reports."""
+    import json
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    s30 = ROOT / "docs" / "results" / "training" / "session30"
+    runs = {label: json.loads((s30 / f"{stem}.json").read_text())
+            for label, stem in SESSION30_SEARCHES.items()}
+
+    def shares(run: dict, policy: str) -> list[float]:
+        return [row[f"{policy}_share_pct"] for row in run["table"]]
+
+    for label, run in runs.items():
+        best = [h["best_share_pct"] for h in run["history"]]
+        events = sum(r["search_mean_events"] + r["search_best_events"] for r in run["table"])
+        row = (f"| {label} | {min(best):.1f}-{max(best):.1f} | "
+               + " / ".join(f"{x:.0f}" for x in shares(run, "search_mean")) + " | "
+               + " / ".join(f"{x:.0f}" for x in shares(run, "search_best")) + f" | {events} |")
+        assert row in training, row
+        assert events == 0 and all(h["best_events"] == 0 for h in run["history"])
+    edges = [runs["edge, released model"], runs["edge, default model"]]
+    top = max(h["best_share_pct"] for run in edges for h in run["history"])
+    assert f"realises more than {top:.1f} % of its gain" in training
+    on_table = [x for run in edges for p in ("search_mean", "search_best") for x in shares(run, p)]
+    assert f"realise {min(on_table):.0f}-{max(on_table):.0f} % of its gain" in training
+    biases = [run["mean"][-1] for run in edges]
+    assert f"its bias ends at {min(biases):.1f}-{max(biases):.1f}" in training
+    cloud = runs["cloud, released model"]
+    own = [h["best_share_pct"] for h in cloud["history"]]
+    table = shares(cloud, "search_mean") + shares(cloud, "search_best")
+    assert f"finds clouds at {min(own):.0f}-{max(own):.0f} % of the +3 cloud's gain" in training
+    assert f"the same clouds realise {min(table):.0f}-{max(table):.0f} %" in training
+    default = shares(runs["cloud, default model"], "search_mean") + shares(
+        runs["cloud, default model"], "search_best")
+    assert f"clouds realise {min(default):.0f}-{max(default):.0f} % on the table" in training
+    gains = " / ".join(f"{r['search_best_gain_pct']:+.2f}" for r in cloud["table"][:4])
+    assert f"EEC vs EE is {gains} % at 300-1200 veh/lane/h" in training
+    half = [PAPER_3X3["EEC vs EE"][d] / 2 for d in DENSITIES]
+    assert all(r["search_best_gain_pct"] < h
+               for r, h in zip(cloud["table"][:4], half[:4], strict=True))
+    clouds = table + default
+    readme = " ".join(README.split())
+    assert (f"Its edges realise {min(on_table):.0f}-{max(on_table):.0f} % of the +3 edge's gain "
+            f"on the table's seeds and its clouds {min(clouds):.0f}-{max(clouds):.0f} % of the "
+            "+3 cloud's") in readme
+    default = runs["cloud, default model"]["table"]
+    assert all(r["search_best_gain_pct"] < h for r, h in zip(default[:6], half[:6], strict=True))
+    at_2100 = (f"(+{default[6]['search_best_gain_pct']:.2f} % against {half[6]:.2f} %), where "
+               f"the constant cloud does too (+{default[6]['ceiling_gain_pct']:.2f} %)")
+    assert default[6]["ceiling_gain_pct"] >= half[6] and at_2100 in training, at_2100
