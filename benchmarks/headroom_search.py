@@ -108,6 +108,22 @@ class Setting:
         return "released_velocity_mps" if released else "avg_travel_velocity_mps"
 
 
+def _edge_actions(setting: Setting, scheme: str, theta_env: np.ndarray | None,
+                  k: int) -> Callable[[Any], np.ndarray | None]:
+    """The edge actions [m/s^2] of a batch step: the searched family (edge search), the frozen
+    edge policy, one call on the whole batch stacked (cloud search, schemes EE and EEC), or
+    none (scheme E: the rules alone)."""
+    if setting.kind == "edge" and theta_env is not None:
+        return lambda st: linear_actions(st.edge_obs, st.edge_mask, theta_env)
+    policy = setting.edge_policy
+    if setting.kind == "cloud" and policy is not None and scheme != "E":
+        def frozen(st: Any) -> np.ndarray:
+            a = policy(st.edge_obs.reshape(-1, k, k, 3), st.edge_mask.reshape(-1, k))
+            return np.asarray(a, np.float64).reshape(st.edge_mask.shape)
+        return frozen
+    return lambda st: None
+
+
 def run_batch(setting: Setting, thetas: np.ndarray | None,
               progress: str = "") -> tuple[np.ndarray, np.ndarray]:
     """Run each parameter vector (rows of ``thetas``) on every (density, seed) pair, all as one
@@ -127,17 +143,7 @@ def run_batch(setting: Setting, thetas: np.ndarray | None,
         observe={"edge"} if scheme != "EEC" else {"edge", "cloud"}, **setting.overrides)
     theta_env = None if thetas is None else np.repeat(thetas, len(pairs), axis=0)
     step = env.reset(seed=[s for _ in range(n_pol) for _, s in pairs])
-    edge_fn: Callable[[Any], np.ndarray | None] = lambda st: None  # noqa: E731
-    if setting.kind == "edge" and theta_env is not None:
-        edge_fn = lambda st: linear_actions(st.edge_obs, st.edge_mask, theta_env)  # noqa: E731
-    elif setting.kind == "cloud" and setting.edge_policy is not None and scheme != "E":
-        policy = setting.edge_policy
-        k = env.k_edge
-
-        def edge_fn(st: Any) -> np.ndarray:
-            rows = st.edge_mask.reshape(-1, k)
-            a = policy(st.edge_obs.reshape(-1, k, k, 3), rows)
-            return np.asarray(a, np.float64).reshape(st.edge_mask.shape)
+    edge_fn = _edge_actions(setting, scheme, theta_env, env.k_edge)
     t0 = time.perf_counter()
     for i in range(setting.steps):
         cloud = None
