@@ -47,7 +47,9 @@ import numpy as np
 import torch
 from paper_table import DENSITIES, config_overrides
 
-from mivecc_agents.policies import CEILING_ACCEL_MPS2, Policy, pretrained_policies
+from mivecc_agents.networks import ACTION_SCALE_MPS2
+from mivecc_agents.policies import Policy, pretrained_policies
+from mivecc_agents.train_eval import ceiling_share_pct, gain_pct, headline_metric
 from mivecc_env import cli_args
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.config import from_overrides
@@ -79,7 +81,7 @@ def linear_actions(obs: np.ndarray, mask: np.ndarray, theta: np.ndarray) -> np.n
     columns."""
     x = column_features(obs.astype(np.float64))
     th = theta.reshape(theta.shape[0], *([1] * (x.ndim - 2)), theta.shape[1])
-    return CEILING_ACCEL_MPS2 * np.tanh((x * th).sum(axis=-1)) * mask
+    return ACTION_SCALE_MPS2 * np.tanh((x * th).sum(axis=-1)) * mask
 
 
 def ceiling_theta() -> np.ndarray:
@@ -104,8 +106,7 @@ class Setting:
 
     @property
     def metric(self) -> str:
-        released = self.overrides.get("model") == "released"
-        return "released_velocity_mps" if released else "avg_travel_velocity_mps"
+        return headline_metric(self.overrides.get("model", "paper"))
 
 
 def _edge_actions(setting: Setting, scheme: str, theta_env: np.ndarray | None,
@@ -161,14 +162,14 @@ def run_batch(setting: Setting, thetas: np.ndarray | None,
             np.asarray(summary["collisions"]).reshape(shape))
 
 
-def ceiling_share_pct(v: np.ndarray, base: np.ndarray, ceiling: np.ndarray) -> np.ndarray:
-    """Share of the ceiling's gain over the base realised by ``v`` [%], per density (means over
-    the seeds first); ``v`` is (n_policies, n_densities, n_seeds), ``base`` and ``ceiling``
-    (1, n_densities, n_seeds). NaN where the ceiling gains nothing."""
-    vm, bm, cm = v.mean(axis=2), base.mean(axis=2), ceiling.mean(axis=2)
-    gain = cm - bm
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(gain > 0, 100.0 * (vm - bm) / gain, np.nan)
+def ceiling_shares(v: np.ndarray, base: np.ndarray, ceiling: np.ndarray) -> np.ndarray:
+    """Share of the ceiling's gain over the base realised by ``v`` [%], per policy and density
+    (:func:`~mivecc_agents.train_eval.ceiling_share_pct` of the seeds' mean velocities); ``v``
+    is (n_policies, n_densities, n_seeds), ``base`` and ``ceiling`` (1, n_densities, n_seeds).
+    NaN where the ceiling gains nothing."""
+    vm, bm, cm = v.mean(axis=2), base.mean(axis=2)[0], ceiling.mean(axis=2)[0]
+    return np.array([[ceiling_share_pct(gain_pct(x, b), gain_pct(c, b))
+                      for x, b, c in zip(row, bm, cm, strict=True)] for row in vm])
 
 
 def cross_entropy_search(
@@ -194,7 +195,7 @@ def cross_entropy_search(
         thetas = np.vstack([mean, mean + sigma * rng.standard_normal((population - 1,
                                                                       len(FEATURES)))])
         v, events = run_batch(setting, thetas, f"iteration {it + 1}/{iterations}")
-        share = ceiling_share_pct(v, base, ceiling)  # (population, n_densities)
+        share = ceiling_shares(v, base, ceiling)  # (population, n_densities)
         score = np.nanmean(share, axis=1)
         order = np.argsort(-score, kind="stable")
         if score[order[0]] > best_score:
@@ -220,14 +221,14 @@ def table_check(setting: Setting, thetas: dict[str, np.ndarray]) -> list[dict[st
     names = ["ceiling", *thetas]
     stacked = np.vstack([ceiling_theta(), *thetas.values()])
     v, events = run_batch(setting, stacked, "table policies")
-    share = ceiling_share_pct(v, base, v[:1])
+    share = ceiling_shares(v, base, v[:1])
     rows = []
     for j, density in enumerate(setting.densities):
         row: dict[str, Any] = {"density": density, "base_mps": float(base[0, j].mean()),
                                "base_events": int(base_events[0, j].sum())}
         for i, name in enumerate(names):
             row[f"{name}_mps"] = float(v[i, j].mean())
-            row[f"{name}_gain_pct"] = float(100 * (v[i, j].mean() / base[0, j].mean() - 1))
+            row[f"{name}_gain_pct"] = gain_pct(v[i, j].mean(), base[0, j].mean())
             row[f"{name}_events"] = int(events[i, j].sum())
             if name != "ceiling":
                 row[f"{name}_share_pct"] = float(share[i, j])

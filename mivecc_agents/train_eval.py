@@ -96,8 +96,7 @@ class PeriodicEvaluation:
         self._args = dict(rows=rows, cols=cols, densities=list(densities), steps=int(steps),
                           seeds=list(seeds))
         self._overrides = {k: v for k, v in config_overrides.items() if k != "max_steps"}
-        released = self._overrides.get("model") == "released"
-        self.metric = "released_velocity_mps" if released else "avg_travel_velocity_mps"
+        self.metric = headline_metric(self._overrides.get("model", "paper"))
         self._edge = edge_policy
         base_policies = {"edge": edge_policy} if edge_policy is not None else {}
         self.baseline = self._per_density(
@@ -154,8 +153,8 @@ class PeriodicEvaluation:
             writer = csv.DictWriter(fh, fieldnames=self._fields, extrasaction="ignore")
             for d, (v, coll) in now.items():
                 base, base_coll = self.baseline[d]
-                gain, ceiling_gain = _gain_pct(v, base), _gain_pct(self.ceiling[d][0], base)
-                share = 100.0 * gain / ceiling_gain if ceiling_gain > 0 else float("nan")
+                gain, ceiling_gain = gain_pct(v, base), gain_pct(self.ceiling[d][0], base)
+                share = ceiling_share_pct(gain, ceiling_gain)
                 gains.append(gain)
                 shares.append(share)
                 writer.writerow({"frames": frames, "updates": updates, "density": d,
@@ -177,9 +176,22 @@ def _over_numbers(reduce: Any, values: list[float]) -> float:
     return float(reduce(finite)) if finite else float("nan")
 
 
-def _gain_pct(velocity_mps: float, baseline_mps: float) -> float:
+def headline_metric(model: str) -> str:
+    """The velocity a model's coordinators are judged by [m/s]: the released-style velocity
+    (455 m metric) under ``model="released"``, else the average travel velocity."""
+    return "released_velocity_mps" if model == "released" else "avg_travel_velocity_mps"
+
+
+def gain_pct(velocity_mps: float, baseline_mps: float) -> float:
     """Relative gain of ``velocity_mps`` over ``baseline_mps`` [%] (NaN without a baseline)."""
     return 100.0 * (velocity_mps / baseline_mps - 1.0) if baseline_mps > 0 else float("nan")
+
+
+def ceiling_share_pct(gain: float, ceiling_gain: float) -> float:
+    """Share of the constant-action ceiling's gain that a policy's ``gain`` realises [%],
+    ``100 x gain / ceiling_gain`` (both [%] over the same baseline; NaN where the ceiling gains
+    nothing)."""
+    return 100.0 * gain / ceiling_gain if ceiling_gain > 0 else float("nan")
 
 
 def plot_eval_curve(csv_path: Path, png_path: Path, title: str) -> Path:

@@ -509,7 +509,7 @@ def test_headroom_search_family_contains_the_ceiling() -> None:
     assert v[1, :, 0].tolist() == [r["released_velocity_mps"] for r in ee3]
     assert not np.array_equal(v[0], v[1])  # another policy, another trajectory
     base, _ = headroom_search.run_batch(setting, None)
-    share = headroom_search.ceiling_share_pct(v, base, alone)
+    share = headroom_search.ceiling_shares(v, base, alone)
     assert np.allclose(share[1], 100.0)
 
 
