@@ -44,7 +44,7 @@ from paper_table import config_overrides
 from mivecc_agents.checkpoints import load_checkpoint, network_variant
 from mivecc_agents.evaluation import evaluate_batch
 from mivecc_agents.learner import SATURATED_Z
-from mivecc_agents.networks import make_critic_net
+from mivecc_agents.networks import critic_members_in, make_critic_net
 from mivecc_agents.policies import load_policy, pretrained_path, pretrained_policies
 from mivecc_env import cli_args
 from mivecc_env.config import from_overrides
@@ -111,7 +111,8 @@ def critic_gaps(
     ckpt = load_checkpoint(path, expected_kind=kind)
     variant = network_variant(ckpt)
     with torch.random.fork_rng(devices=[]):
-        critic = make_critic_net(kind, variant=variant)
+        critic = make_critic_net(kind, variant=variant,
+                                 members=critic_members_in(ckpt["critic"]))
     critic.load_state_dict(ckpt["critic"])
     critic.eval()
     actor = load_policy(path, expected_kind=kind)
@@ -124,13 +125,13 @@ def critic_gaps(
     probes += [(f"constant {c:+g}", torch.full_like(a, c)) for c in constants]
     rows = []
     with torch.no_grad():
-        q_a = critic(o, a, m)[..., 0]
+        q_a = critic(o, a, m).mean(-1)
         for name, x in probes:
-            gap = (critic(o, x * m, m)[..., 0] - q_a).numpy()
+            gap = (critic(o, x * m, m).mean(-1) - q_a).numpy()
             rows.append({"probe": name, "mean_gap": float(gap.mean()),
                          "share_positive": float((gap > 0).mean())})
     a_var = a.clone().requires_grad_(True)
-    q = critic(o, a_var, m)[..., 0].sum()
+    q = critic(o, a_var, m).mean(-1).sum()
     (grad,) = torch.autograd.grad(q, a_var)
     slope_up = (grad * m).sum(dim=-1).numpy()  # dQ/dc of a + c (all real columns)
     rows.append({"probe": "slope dQ/dc of a + c*1 [1/(m/s^2)]", "mean_gap": float(slope_up.mean()),

@@ -247,7 +247,7 @@ class DDPGLearner:
         """Critic loss, actor loss (``None`` when ``actor_step`` is False; TD3 only) and the
         critics' predicted values of one minibatch."""
         if not self.td3:
-            out = self.loss(batch)
+            out = self.loss(_for_members(batch, self.group, self.preset.critic_members))
             return out["loss_value"], out["loss_actor"], out["pred_value"]
         critic_loss, meta = self.loss.value_loss(batch)
         actor_loss = self.loss.actor_loss(batch)[0] if actor_step else None
@@ -279,6 +279,21 @@ class DDPGLearner:
         for group, base, factor in zip(self.optimizer.param_groups, self.scheduler.base_lrs,
                                        self.scheduler.lr_lambdas, strict=True):
             group["lr"] = base * factor(0)
+
+
+def _for_members(batch: Any, group: str, members: int) -> Any:
+    """The minibatch as an ensemble of ``members`` critics needs it: reward, done and
+    terminated repeated along their last axis, so that TD(0) gives each member (one column of
+    the critic's output) its own target. ``DDPGLoss`` then averages the members' squared
+    errors, and the actor's loss is minus the mean of their values."""
+    if members == 1:
+        return batch
+    batch = batch.clone(False)
+    for name in ("reward", "done", "terminated"):
+        key = ("next", group, name)
+        value = batch.get(key)
+        batch.set(key, value.expand(*value.shape[:-1], members))
+    return batch
 
 
 def _mean(xs: list[torch.Tensor]) -> float:

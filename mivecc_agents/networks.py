@@ -71,6 +71,7 @@ __all__ = [
     "NETWORK_SPECS",
     "NETWORK_VARIANTS",
     "ConvActivation",
+    "CriticEnsembleNet",
     "MiVeCCActorNet",
     "MiVeCCCriticNet",
     "NetworkSpec",
@@ -79,6 +80,7 @@ __all__ = [
     "PerPickActorNet",
     "PerPickCriticNet",
     "count_parameters",
+    "critic_members_in",
     "get_network_spec",
     "make_actor",
     "make_actor_net",
@@ -600,6 +602,38 @@ class PerPickCriticNet(_PerPickNode):
         return (q.sum(-1) / real.sum(-1).clamp(min=1.0)).unsqueeze(-1)
 
 
+class CriticEnsembleNet(nn.Module):
+    """Several critics side by side: ``(observation, action, mask) -> values (..., M)``.
+
+    Member ``i`` writes column ``i``. Trained with DDPG's loss, each member fits its own TD(0)
+    target, bootstrapped from its own target copy, and the actor climbs the mean of the
+    members (:class:`mivecc_agents.learner.DDPGLearner`): an ensemble whose mean has less of
+    one critic's fitting noise (the members start from their own initialisations).
+
+    Args:
+        members: The member critics (at least 2), all of one node kind.
+    """
+
+    def __init__(self, members: Sequence[nn.Module]) -> None:
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"members: an ensemble needs at least 2 critics, got {len(members)}")
+        self.members = nn.ModuleList(members)
+        self.spec = members[0].spec
+
+    def forward(
+        self, observation: torch.Tensor, action: torch.Tensor, mask: torch.Tensor
+    ) -> torch.Tensor:
+        """Each member's state-action value, ``(..., M)`` (arguments as the members')."""
+        return torch.cat([m(observation, action, mask) for m in self.members], dim=-1)
+
+
+def critic_members_in(state_dict: dict[str, torch.Tensor]) -> int:
+    """Number of critics a critic state dict holds (1 for a single critic's)."""
+    indices = {key.split(".")[1] for key in state_dict if key.startswith("members.")}
+    return len(indices) or 1
+
+
 def _last_linear(module: nn.Module) -> nn.Linear:
     """Return the last ``nn.Linear`` of a module (in registration order)."""
     linears = [m for m in module.modules() if isinstance(m, nn.Linear)]
@@ -716,7 +750,8 @@ def make_critic_net(
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
     variant: NetworkVariant = "paper",
-) -> MiVeCCCriticNet | PerPickCriticNet:
+    members: int = 1,
+) -> MiVeCCCriticNet | PerPickCriticNet | CriticEnsembleNet:
     """Build the critic network of a node kind.
 
     Args:
@@ -725,10 +760,18 @@ def make_critic_net(
             the global random state is left untouched; otherwise PyTorch's global RNG is used.
         device: Device of the parameters.
         variant: ``"paper"``, ``"released"`` or ``"per_pick"`` (:class:`NetworkSpec`).
+        members: Critics side by side (:class:`CriticEnsembleNet`, each drawn after the one
+            before); 1: a single critic.
 
     Returns:
-        ``forward(observation (..., K, K, 3), action (..., K), mask (..., K)) -> value (..., 1)``.
+        ``forward(observation (..., K, K, 3), action (..., K), mask (..., K)) -> value
+        (..., members)``.
     """
+    if members > 1:
+        return CriticEnsembleNet([
+            make_critic_net(kind, generator=generator, device=device, variant=variant)
+            for _ in range(members)
+        ])
     spec = get_network_spec(kind, variant)
     critic_class = PerPickCriticNet if variant == "per_pick" else MiVeCCCriticNet
     if generator is None:
@@ -790,6 +833,7 @@ def make_critic(
     generator: torch.Generator | None = None,
     device: torch.device | str | None = None,
     variant: NetworkVariant = "paper",
+    members: int = 1,
 ) -> ValueOperator:
     """Wrap the critic network for a TorchRL multi-agent group.
 
@@ -798,13 +842,16 @@ def make_critic(
         group: Agent group name in the TensorDict (e.g. ``"edge"``).
         generator: Optional random source for the weights (see :func:`make_critic_net`).
         device: Device of the parameters.
+        variant: Network variant (see :func:`make_critic_net`).
+        members: Critics side by side (see :func:`make_critic_net`).
 
     Returns:
         A ValueOperator reading ``(group, "observation")``, ``(group, "action")`` and
         ``(group, "mask")`` and writing ``(group, "state_action_value")`` with shape
-        ``(..., 1)``.
+        ``(..., members)``.
     """
-    net = make_critic_net(kind, generator=generator, device=device, variant=variant)
+    net = make_critic_net(kind, generator=generator, device=device, variant=variant,
+                          members=members)
     return ValueOperator(
         net,
         in_keys=_group_keys(group, ("observation", "action", "mask")),

@@ -120,6 +120,11 @@ class TrainPreset:
         td3_noise_clip: TD3 only: that noise is clipped to +-this [m/s^2] (TD3's 0.5 of the
             bound).
         td3_policy_delay: TD3 only: critic updates per actor and target update (TD3's 2).
+        critic_members: DDPG only: critics trained side by side, each on its own TD(0) target
+            from its own target copy, the actor climbing their mean
+            (:class:`mivecc_agents.networks.CriticEnsembleNet`): an ensemble against one
+            critic's fitting noise, which ranks the actor's own action above better ones in
+            some training seeds and not in others (``docs/training.md``); 1: DDPG's one critic.
     """
 
     name: str
@@ -161,6 +166,7 @@ class TrainPreset:
     td3_target_noise: float = 0.6
     td3_noise_clip: float = 1.5
     td3_policy_delay: int = 2
+    critic_members: int = 1
 
     def __post_init__(self) -> None:
         for name, rng in _FIELD_RANGES.items():
@@ -174,6 +180,9 @@ class TrainPreset:
         if bound is not None and not (math.isfinite(bound) and bound > 0):
             raise ValueError(f"actor_preact_bound: must be a finite number > 0 or none, "
                              f"got {bound!r}")
+        if self.algorithm == "td3" and self.critic_members != 1:
+            raise ValueError(f"critic_members: must be 1 with algorithm 'td3' (it has its own "
+                             f"pair of critics), got {self.critic_members}")
         if not (math.isfinite(self.actor_preact_weight) and self.actor_preact_weight >= 0):
             raise ValueError(f"actor_preact_weight: must be a finite number >= 0, "
                              f"got {self.actor_preact_weight!r}")
@@ -223,6 +232,7 @@ _FIELD_RANGES: dict[str, Range] = {
     "td3_target_noise": Range(0.0, math.inf),
     "td3_noise_clip": Range(0.0, math.inf),
     "td3_policy_delay": Range(1, math.inf, integer=True),
+    "critic_members": Range(1, 16, integer=True),
 }
 _OPTIONAL_FIELDS = ("envs_per_density", "max_grad_norm", "actor_init_action", "eval_rows",
                     "eval_cols")

@@ -50,7 +50,12 @@ from mivecc_agents.learner import (
     saturated_share,
 )
 from mivecc_agents.macro_steps import cloud_macro_transitions
-from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor, make_critic
+from mivecc_agents.networks import (
+    ACTION_SCALE_MPS2,
+    critic_members_in,
+    make_actor,
+    make_critic,
+)
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
 from mivecc_agents.reward_shaping import potential_keys, shape_rewards
 
@@ -685,10 +690,16 @@ def _train(
         print(f"mivecc train: {resume} holds {network_variant(start)!r} networks: continuing "
               f"with those (the preset names {p.network!r})", file=sys.stderr)
         p = p.replace(network=network_variant(start))
+    if start is not None and critic_members_in(start["critic"]) != p.critic_members:
+        import sys
+
+        print(f"mivecc train: {resume} holds {critic_members_in(start['critic'])} critic(s): "
+              f"continuing with those (the preset names {p.critic_members})", file=sys.stderr)
+        p = p.replace(critic_members=critic_members_in(start["critic"]))
     actor = make_actor(group, group, variant=p.network)
     if p.actor_init_action is not None and start is None:  # a resumed run keeps its weights
         actor.module.start_near(p.actor_init_action)
-    critic = make_critic(group, group, variant=p.network)
+    critic = make_critic(group, group, variant=p.network, members=p.critic_members)
     warm = start is not None and "loss" not in start
     if warm:
         try:
