@@ -16,7 +16,8 @@ key                    content
 ``grid_size``          K of the network (15 or 60)
 ``preset``             the training preset as a dict
 ``actor``              actor network state dict (``MiVeCCActorNet``)
-``critic``             critic network state dict (``MiVeCCCriticNet``)
+``critic``             critic network state dict (``MiVeCCCriticNet``; ``CriticEnsembleNet``, keys
+                       ``members.<i>.``, with ``critic_members`` > 1)
 ``loss``               DDPGLoss (or TD3Loss) state dict (actor, critic(s), their target copies)
 ``optimizer``          Adam state dict
 ``frames``             environment frames collected so far
