@@ -547,3 +547,109 @@ def test_session30_headroom_figures_in_training_doc():
     at_2100 = (f"(+{default[6]['search_best_gain_pct']:.2f} % against {half[6]:.2f} %), where "
                f"the constant cloud does too (+{default[6]['ceiling_gain_pct']:.2f} %)")
     assert default[6]["ceiling_gain_pct"] >= half[6] and at_2100 in training, at_2100
+
+
+#: docs/training.md's session-31 table: seed -> (one-critic table, five-critic table), each EE
+#: run merged over the shipped pair's E and EE+3 runs (session 28).
+SESSION31_ONE_CRITIC = {0: ("session28", "pt_shield_pair_released"),
+                        **{s: ("session29", f"pt_sel3x3_seed{s}_best") for s in (1, 2, 3, 4)}}
+
+
+def _picking(run: Path) -> tuple[int, float]:
+    """(frames, score) of the policy a run's ``min_ceiling_share`` picking kept: the first
+    evaluation with the largest smallest share over its densities."""
+    import csv
+
+    by_frames: dict[int, list[float]] = {}
+    with (run / "eval_log.csv").open() as fh:
+        for r in csv.DictReader(fh):
+            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
+    best = max(by_frames, key=lambda f: min(by_frames[f]))
+    return best, min(by_frames[best])
+
+
+def test_session31_critic_ensemble_in_training_doc():
+    """The five-critic edges of session 31 against the one-critic ones, from the committed
+    tables, evaluation logs, critic checks and training logs."""
+    import csv
+    import re
+    import statistics
+
+    raw = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    training = " ".join(raw.split())
+    results = ROOT / "docs" / "results" / "training"
+    s31 = results / "session31"
+    pair = results / "session28" / "pt_shield_pair_released" / "paper_table.csv"
+    one, five = {}, {}
+    for seed, (session, folder) in SESSION31_ONE_CRITIC.items():
+        one[seed] = _ceiling_share(_merged_cells(pair, results / session / folder /
+                                                 "paper_table.csv"), "rv")
+        five[seed] = _ceiling_share(_merged_cells(pair, s31 / f"pt_ens5_seed{seed}_best" /
+                                                  "paper_table.csv"), "rv")
+    # the picking scores: seed 0's from session 29's evaluation of the shipped edge
+    cells = _merged_cells(results / "session29" / "pt_pick_seed0" / "paper_table.csv")
+    shipped_score = min(100 * (cells[("EE", d)]["rv"] / cells[("E", d)]["rv"] - 1)
+                        / (cells[("EE+3", d)]["rv"] / cells[("E", d)]["rv"] - 1)
+                        for d in (900, 1500, 2100))
+    for seed in range(5):
+        frames, score = _picking(s31 / f"edge_released_shield_ens5_seed{seed}")
+        label = f"seed {seed}, five critics ({frames:_} frames)".replace("_", " ")
+        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in five[seed])
+                + f" | {score:.1f} |") in raw, label
+        if seed == 0:
+            label, score = "seed 0, one critic (shipped)", shipped_score
+        else:
+            frames, score = _picking(results / "session29" /
+                                     f"edge_released_shield_sel3x3_seed{seed}")
+            label = f"seed {seed}, one critic ({frames:_} frames)".replace("_", " ")
+        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in one[seed])
+                + f" | {score:.1f} |") in raw, label
+    mean_one = statistics.mean(x for v in one.values() for x in v)
+    mean_five = statistics.mean(x for v in five.values() for x in v)
+    assert (f"the mean share is {mean_five:.1f} % with five critics and {mean_one:.1f} % with "
+            "one") in training
+    assert (f"over training seeds 0-4 they realise {mean_five:.1f} % of its gain on average, "
+            f"one critic {mean_one:.1f} %") in " ".join(README.split())
+    raised = {s: [b - a for a, b in zip(one[s], five[s], strict=True)] for s in range(5)}
+    assert all(sum(d > 0 for d in raised[s]) >= 4 for s in (2, 3))  # "at most densities"
+    assert f"(by up to {max(max(raised[2]), max(raised[3])):.0f} points)" in training
+    assert all(d < 0 for d in raised[4]) and raised[0][0] > 0 > max(raised[0][1:])
+    best = max((x, s, i) for s in range(5) for i, x in enumerate(five[s]))
+    assert best[0] < 100 and (best[1], best[2]) == (2, 0)  # seed 2 at 300 veh/lane/h
+    assert f"(the closest: {best[0]:.1f} %, seed 2 at 300 veh/lane/h)" in training
+    assert f"scores above the shipped edge's {shipped_score:.1f}" in training
+    assert max(_picking(s31 / f"edge_released_shield_ens5_seed{s}")[1]
+               for s in range(5)) < shipped_score
+
+    # the critic checks: the members' mean against the constant +3; the actor's columns
+    def check(seed: int) -> str:
+        return (s31 / f"edge_critic_check_ens5_seed{seed}.md").read_text(encoding="utf-8")
+
+    def probe(text: str, name: str) -> str:
+        line = next(x for x in text.splitlines() if x.startswith(f"| {name} |"))
+        return line.split("|")[3].strip()
+
+    above = " / ".join(probe(check(s), "constant +3").removesuffix(" %") for s in range(5))
+    assert f"in {above} % of 3600 states (seeds 0-4)" in training
+    columns = {s: re.search(r"always_plus3 \((\d+) columns\)", check(s)).group(1)
+               for s in range(5)}
+    assert (columns[2], columns[4]) == ("14", "1")
+    assert "always_minus3 (1 columns): 9" in check(2)
+    assert probe(check(2), "actor: share of actions within 0.01 of +3") == "93 %"
+    assert probe(check(4), "actor: share of actions within 0.01 of +3") == "52 %"
+
+    # the learner's cost: median fps_optim, five critics (seeds 1, 2) and one (seeds 3, 4)
+    def median_fps(run: Path) -> int:
+        with (run / "train_log.csv").open() as fh:
+            values = [float(r["fps_optim"]) for r in csv.DictReader(fh)
+                      if r["fps_optim"] not in ("", "nan")]
+        return round(statistics.median(values))
+
+    ens = sorted(median_fps(s31 / f"edge_released_shield_ens5_seed{s}") for s in (1, 2))
+    ones = sorted(median_fps(results / "session29" / f"edge_released_shield_sel3x3_seed{s}")
+                  for s in (3, 4))
+    assert (f"was {ens[0]}-{ens[1]} with five critics, two runs side by side, against "
+            f"{ones[0]}-{ones[1]} with one critic") in training
+    ratio = f"{statistics.mean(ones) / statistics.mean(ens):.1f}x"
+    assert f"about {ratio} the update time" in training
+    assert f"with five critics the updates took about {ratio} as long as with one" in training
