@@ -604,6 +604,23 @@ def test_session31_critic_ensemble_in_training_doc():
             label = f"seed {seed}, one critic ({frames:_} frames)".replace("_", " ")
         assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in one[seed])
                 + f" | {score:.1f} |") in raw, label
+    # two more one-critic seeds (5, 6): only the shipped edge reaches the +3 edge
+    scores = {}
+    for seed in (5, 6):
+        share = _ceiling_share(_merged_cells(pair, s31 / f"pt_sel3x3_seed{seed}_best" /
+                                             "paper_table.csv"), "rv")
+        frames, scores[seed] = _picking(s31 / f"edge_released_shield_sel3x3_seed{seed}")
+        label = f"seed {seed}, one critic ({frames:_} frames)".replace("_", " ")
+        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in share)
+                + f" | {scores[seed]:.1f} |") in raw, label
+        assert max(share) < 100
+        if seed == 5:
+            assert all(99 <= share[i] < 100 for i in (3, 4))  # within 1 point at 1200, 1500
+    assert all(max(v) < 100 for s, v in one.items() if s != 0)
+    others = [_picking(results / "session29" / f"edge_released_shield_sel3x3_seed{s}")[1]
+              for s in (1, 2, 3, 4)]
+    assert max(others) < scores[5] == max(scores.values())
+    assert f"scores above {scores[5]:.1f} on the picking seeds" in training
     mean_one = statistics.mean(x for v in one.values() for x in v)
     mean_five = statistics.mean(x for v in five.values() for x in v)
     assert (f"the mean share is {mean_five:.1f} % with five critics and {mean_one:.1f} % with "
