@@ -690,12 +690,13 @@ def _train(
         print(f"mivecc train: {resume} holds {network_variant(start)!r} networks: continuing "
               f"with those (the preset names {p.network!r})", file=sys.stderr)
         p = p.replace(network=network_variant(start))
-    if start is not None and critic_members_in(start["critic"]) != p.critic_members:
+    held = critic_members_in(start["critic"]) if start is not None else p.critic_members
+    if held != p.critic_members:
         import sys
 
-        print(f"mivecc train: {resume} holds {critic_members_in(start['critic'])} critic(s): "
-              f"continuing with those (the preset names {p.critic_members})", file=sys.stderr)
-        p = p.replace(critic_members=critic_members_in(start["critic"]))
+        print(f"mivecc train: {resume} holds {held} critic(s): continuing with those (the "
+              f"preset names {p.critic_members})", file=sys.stderr)
+        p = p.replace(critic_members=held)
     actor = make_actor(group, group, variant=p.network)
     if p.actor_init_action is not None and start is None:  # a resumed run keeps its weights
         actor.module.start_near(p.actor_init_action)
