@@ -621,6 +621,19 @@ def test_session31_critic_ensemble_in_training_doc():
               for s in (1, 2, 3, 4)]
     assert max(others) < scores[5] == max(scores.values())
     assert f"scores above {scores[5]:.1f} on the picking seeds" in training
+    # recipe 2 with the actor's pre-activations bounded by 4 (seeds 1, 2): worse
+    for seed in (1, 2):
+        share = _ceiling_share(_merged_cells(pair, s31 / f"pt_bound4_seed{seed}_best" /
+                                             "paper_table.csv"), "rv")
+        frames, score = _picking(s31 / f"edge_released_shield_bound4_seed{seed}")
+        label = f"seed {seed}, one critic, bound 4 ({frames:_} frames)".replace("_", " ")
+        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in share)
+                + f" | {score:.1f} |") in raw, label
+        assert min(share) < min(one[seed])
+    bounded = [min(_ceiling_share(_merged_cells(pair, s31 / f"pt_bound4_seed{seed}_best" /
+                                                "paper_table.csv"), "rv")) for seed in (1, 2)]
+    assert (f"(weakest density {bounded[0]:.0f} and {bounded[1]:.0f} % against "
+            f"{min(one[1]):.0f} and {min(one[2]):.0f} % without the bound)") in training
     mean_one = statistics.mean(x for v in one.values() for x in v)
     mean_five = statistics.mean(x for v in five.values() for x in v)
     assert (f"the mean share is {mean_five:.1f} % with five critics and {mean_one:.1f} % with "
