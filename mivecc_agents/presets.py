@@ -73,6 +73,10 @@ class TrainPreset:
             annealed from ``sigma_init`` to ``sigma_end``; ``"scalar"``: one Gaussian number
             per environment and step added to all its actions (released edge stage, sigma
             annealed the same way); ``"none"``: no noise (released cloud stage).
+        explore_uniform_prob: After the noise, each action column is replaced, with this
+            probability, by a uniform draw over [-3, 3] m/s^2 (every step, not annealed; 0:
+            never). Keeps showing the critic every action where the actor sits at a bound;
+            needs noise (not ``exploration="none"``).
         raw_edge_period: Stage I: on every ``n``-th step the edge action is executed
             unmodified (no veto, no max; released: 2, every other step); 0: never.
         continuous: One continuing simulation per environment, episodes are chunks of
@@ -147,6 +151,7 @@ class TrainPreset:
     episode_steps: int = 3000
     lr_schedule: Literal["linear", "constant"] = "linear"
     exploration: Literal["per_column", "scalar", "none"] = "per_column"
+    explore_uniform_prob: float = 0.0
     raw_edge_period: int = 0
     continuous: bool = False
     network: Literal["paper", "released", "per_pick"] = "paper"
@@ -180,6 +185,9 @@ class TrainPreset:
         if bound is not None and not (math.isfinite(bound) and bound > 0):
             raise ValueError(f"actor_preact_bound: must be a finite number > 0 or none, "
                              f"got {bound!r}")
+        if self.exploration == "none" and self.explore_uniform_prob > 0:
+            raise ValueError(f"explore_uniform_prob: must be 0 with exploration 'none', got "
+                             f"{self.explore_uniform_prob}")
         if self.algorithm == "td3" and self.critic_members != 1:
             raise ValueError(f"critic_members: must be 1 with algorithm 'td3' (it has its own "
                              f"pair of critics), got {self.critic_members}")
@@ -222,6 +230,7 @@ _FIELD_RANGES: dict[str, Range] = {
     "buffer_memory_mb": Range(1, math.inf, integer=True),
     "max_grad_norm": Range(0.0, math.inf, lo_open=True),
     "episode_steps": Range(1, math.inf, integer=True),
+    "explore_uniform_prob": Range(0.0, 1.0),
     "raw_edge_period": Range(0, math.inf, integer=True),
     "eval_every_frames": Range(0, math.inf, integer=True),
     "eval_steps": Range(1, math.inf, integer=True),

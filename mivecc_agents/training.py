@@ -751,6 +751,7 @@ def _train(
         p.sigma_end,
         p.sigma_anneal_fraction * total_frames,
         (group, "action"),
+        uniform_prob=p.explore_uniform_prob,
     )
     if state["frames"] and noise is not None:
         noise.step(state["frames"])
