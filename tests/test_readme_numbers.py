@@ -634,6 +634,23 @@ def test_session31_critic_ensemble_in_training_doc():
                                                 "paper_table.csv"), "rv")) for seed in (1, 2)]
     assert (f"(weakest density {bounded[0]:.0f} and {bounded[1]:.0f} % against "
             f"{min(one[1]):.0f} and {min(one[2]):.0f} % without the bound)") in training
+    # recipe 2 with uniform draws in the exploration (seeds 1, 2)
+    uniform = {}
+    for seed in (1, 2):
+        uniform[seed] = _ceiling_share(_merged_cells(pair, s31 / f"pt_unif05_seed{seed}_best"
+                                                     / "paper_table.csv"), "rv")
+        frames, score = _picking(s31 / f"edge_released_shield_unif05_seed{seed}")
+        label = f"seed {seed}, one critic, uniform 0.05 ({frames:_} frames)".replace("_", " ")
+        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in uniform[seed])
+                + f" | {score:.1f} |") in raw, label
+        assert max(uniform[seed]) < 100
+    assert (f"realises {min(uniform[2]):.1f}-{max(uniform[2]):.1f} % of the +3 edge's gain at "
+            "every density") in training
+    assert f"(the shipped one: {min(one[0]):.0f}-{max(one[0]):.0f} %)" in training
+    top = _picking(s31 / "edge_released_shield_unif05_seed2")[1]
+    assert top > shipped_score and f"its picking score, {top:.1f}, is the first" in training
+    assert (f"(weakest density {min(uniform[1]):.0f} % against {min(one[1]):.0f} %)"
+            in training) and min(uniform[1]) < min(one[1])
     mean_one = statistics.mean(x for v in one.values() for x in v)
     mean_five = statistics.mean(x for v in five.values() for x in v)
     assert (f"the mean share is {mean_five:.1f} % with five critics and {mean_one:.1f} % with "
