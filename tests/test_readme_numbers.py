@@ -646,6 +646,8 @@ def test_session31_critic_ensemble_in_training_doc():
         assert max(uniform[seed]) < 100
     assert (f"realises {min(uniform[2]):.1f}-{max(uniform[2]):.1f} % of the +3 edge's gain at "
             "every density") in training
+    assert (f"lifted seed 2 to {min(uniform[2]):.1f}-{max(uniform[2]):.1f} % at every density "
+            "and lowered seed 1") in " ".join(README.split())
     assert f"(the shipped one: {min(one[0]):.0f}-{max(one[0]):.0f} %)" in training
     top = _picking(s31 / "edge_released_shield_unif05_seed2")[1]
     assert top > shipped_score and f"its picking score, {top:.1f}, is the first" in training
