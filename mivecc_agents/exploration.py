@@ -25,6 +25,8 @@ import torch
 from tensordict.nn import TensorDictModuleBase
 from torchrl.modules import AdditiveGaussianModule
 
+from mivecc_agents.presets import check_uniform_exploration
+
 __all__ = ["EXPLORATIONS", "ScalarGaussianModule", "UniformColumnsModule", "make_exploration"]
 
 EXPLORATIONS: tuple[str, ...] = ("per_column", "scalar", "none")
@@ -94,10 +96,8 @@ def make_exploration(
     Raises:
         ValueError: an unknown ``kind``, or ``uniform_prob`` > 0 with ``"none"``.
     """
+    check_uniform_exploration(kind, uniform_prob)
     if kind == "none":
-        if uniform_prob > 0:
-            raise ValueError(f"explore_uniform_prob: must be 0 with exploration 'none', "
-                             f"got {uniform_prob}")
         return None
     cls = {"per_column": AdditiveGaussianModule, "scalar": ScalarGaussianModule}.get(kind)
     if cls is None:

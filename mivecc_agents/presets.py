@@ -30,6 +30,7 @@ __all__ = [
     "PRESETS",
     "TrainPreset",
     "add_train_arguments",
+    "check_uniform_exploration",
     "get_preset",
     "preset_with",
     "thread_settings",
@@ -185,9 +186,7 @@ class TrainPreset:
         if bound is not None and not (math.isfinite(bound) and bound > 0):
             raise ValueError(f"actor_preact_bound: must be a finite number > 0 or none, "
                              f"got {bound!r}")
-        if self.exploration == "none" and self.explore_uniform_prob > 0:
-            raise ValueError(f"explore_uniform_prob: must be 0 with exploration 'none', got "
-                             f"{self.explore_uniform_prob}")
+        check_uniform_exploration(self.exploration, self.explore_uniform_prob)
         if self.algorithm == "td3" and self.critic_members != 1:
             raise ValueError(f"critic_members: must be 1 with algorithm 'td3' (it has its own "
                              f"pair of critics), got {self.critic_members}")
@@ -209,6 +208,17 @@ class TrainPreset:
     def to_dict(self) -> dict[str, Any]:
         """Fields as a plain dict."""
         return dataclasses.asdict(self)
+
+
+def check_uniform_exploration(exploration: str, uniform_prob: float) -> None:
+    """Uniform draws replace columns of a noisy action: refuse them without noise.
+
+    Raises:
+        ValueError: ``uniform_prob`` > 0 with ``exploration="none"``, naming the field.
+    """
+    if exploration == "none" and uniform_prob > 0:
+        raise ValueError(f"explore_uniform_prob: must be 0 with exploration 'none', got "
+                         f"{uniform_prob}")
 
 
 #: Range of each numeric field (``gamma``, ``actor_preact_bound`` and ``actor_preact_weight``

@@ -457,24 +457,36 @@ def test_session29_figures_in_training_doc():
     assert cloud in training, cloud
 
 
+def _picking(run: Path) -> tuple[int, float]:
+    """(frames, score) of the policy a run's ``min_ceiling_share`` picking kept: the first
+    evaluation with the largest smallest share over its densities."""
+    import csv
+
+    by_frames: dict[int, list[float]] = {}
+    with (run / "eval_log.csv").open() as fh:
+        for r in csv.DictReader(fh):
+            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
+    best = max(by_frames, key=lambda f: min(by_frames[f]))
+    return best, min(by_frames[best])
+
+
+def _picking_shares(table: Path) -> list[float]:
+    """The share of the +3 edge's gain EE realises at 900 / 1500 / 2100 veh/lane/h in a
+    paper_table CSV with E, EE and EE+3 runs (the picking evaluation's densities) [%]."""
+    cells = _merged_cells(table)
+    return [100 * (cells[("EE", d)]["rv"] / cells[("E", d)]["rv"] - 1)
+            / (cells[("EE+3", d)]["rv"] / cells[("E", d)]["rv"] - 1) for d in (900, 1500, 2100)]
+
+
 def test_session29_picking_scores_in_training_doc():
     """The picking evaluation's score (smallest ceiling share over 900 / 1500 / 2100 veh/lane/h
     on 3x3 seeds 1000-1002) of the shipped seed-0 edge and of the seed 1-4 runs' picks."""
-    import csv
 
     training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
     s29 = ROOT / "docs" / "results" / "training" / "session29"
-    cells = _merged_cells(s29 / "pt_pick_seed0" / "paper_table.csv")
-    shares = [100 * (cells[("EE", d)]["rv"] / cells[("E", d)]["rv"] - 1)
-              / (cells[("EE+3", d)]["rv"] / cells[("E", d)]["rv"] - 1) for d in (900, 1500, 2100)]
-    picks = []
-    for seed in (1, 2, 3, 4):
-        with (s29 / f"edge_released_shield_sel3x3_seed{seed}" / "eval_log.csv").open() as fh:
-            rows = list(csv.DictReader(fh))
-        by_frames: dict[str, list[float]] = {}
-        for r in rows:
-            by_frames.setdefault(r["frames"], []).append(float(r["ceiling_share_pct"]))
-        picks.append(max(min(v) for v in by_frames.values()))
+    shares = _picking_shares(s29 / "pt_pick_seed0" / "paper_table.csv")
+    picks = [_picking(s29 / f"edge_released_shield_sel3x3_seed{seed}")[1]
+             for seed in (1, 2, 3, 4)]
     others = " / ".join(f"{x:.1f}" for x in picks)
     assert (f"is {min(shares):.1f} % for the shipped seed-0 edge and {others} % for the best "
             "policies of seeds 1 / 2 / 3 / 4") in training
@@ -555,19 +567,6 @@ SESSION31_ONE_CRITIC = {0: ("session28", "pt_shield_pair_released"),
                         **{s: ("session29", f"pt_sel3x3_seed{s}_best") for s in (1, 2, 3, 4)}}
 
 
-def _picking(run: Path) -> tuple[int, float]:
-    """(frames, score) of the policy a run's ``min_ceiling_share`` picking kept: the first
-    evaluation with the largest smallest share over its densities."""
-    import csv
-
-    by_frames: dict[int, list[float]] = {}
-    with (run / "eval_log.csv").open() as fh:
-        for r in csv.DictReader(fh):
-            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
-    best = max(by_frames, key=lambda f: min(by_frames[f]))
-    return best, min(by_frames[best])
-
-
 def test_session31_critic_ensemble_in_training_doc():
     """The five-critic edges of session 31 against the one-critic ones, from the committed
     tables, evaluation logs, critic checks and training logs."""
@@ -587,10 +586,8 @@ def test_session31_critic_ensemble_in_training_doc():
         five[seed] = _ceiling_share(_merged_cells(pair, s31 / f"pt_ens5_seed{seed}_best" /
                                                   "paper_table.csv"), "rv")
     # the picking scores: seed 0's from session 29's evaluation of the shipped edge
-    cells = _merged_cells(results / "session29" / "pt_pick_seed0" / "paper_table.csv")
-    shipped_score = min(100 * (cells[("EE", d)]["rv"] / cells[("E", d)]["rv"] - 1)
-                        / (cells[("EE+3", d)]["rv"] / cells[("E", d)]["rv"] - 1)
-                        for d in (900, 1500, 2100))
+    shipped_score = min(_picking_shares(results / "session29" / "pt_pick_seed0" /
+                                        "paper_table.csv"))
     for seed in range(5):
         frames, score = _picking(s31 / f"edge_released_shield_ens5_seed{seed}")
         label = f"seed {seed}, five critics ({frames:_} frames)".replace("_", " ")

@@ -37,6 +37,8 @@ def test_field_and_its_errors() -> None:
             TINY.replace(explore_uniform_prob=bad)
     with pytest.raises(ValueError, match="explore_uniform_prob: must be 0 with exploration"):
         TINY.replace(exploration="none", explore_uniform_prob=0.1)
+    with pytest.raises(ValueError, match="explore_uniform_prob: must be 0 with exploration"):
+        make_exploration("none", None, 0.1, 0.1, 10, "action", uniform_prob=0.1)
 
 
 def test_columns_are_replaced_by_uniform_draws_at_the_given_rate() -> None:
