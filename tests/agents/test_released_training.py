@@ -288,6 +288,26 @@ def test_shipped_shield_edges_load_record_their_training_and_are_picked(model):
         k: str(pretrained_path(k, model)) for k in ("edge", "cloud")}
 
 
+def test_shipped_released_shield_edge_records_its_recipe():
+    # docs/training.md, "Uniform draws on seven training seeds: the released shield edge
+    # replaced": session 31's seed-2 run with uniform draws, its policy kept at 20 400 frames
+    # by the 3x3 picking evaluation
+    import torch
+
+    from mivecc_agents.policies import pretrained_path
+
+    ckpt = torch.load(pretrained_path("edge", "released", safety_shield=True),
+                      map_location="cpu", weights_only=False)
+    preset = ckpt["preset"]
+    assert {k: preset[k] for k in ("exploration", "sigma_init", "sigma_end",
+                                   "explore_uniform_prob", "eval_select", "critic_members",
+                                   "algorithm")} == {
+        "exploration": "per_column", "sigma_init": 1.0, "sigma_end": 0.3,
+        "explore_uniform_prob": 0.05, "eval_select": "min_ceiling_share", "critic_members": 1,
+        "algorithm": "ddpg"}
+    assert ckpt["frames"] == 20_400 and ckpt["extra"]["seed"] == 2
+
+
 def test_constant_policy_is_the_ceiling_coordinator():
     from mivecc_agents.policies import constant_policy
 
