@@ -214,13 +214,13 @@ def plot_eval_curve(csv_path: Path, png_path: Path, title: str) -> Path:
                        lw=1.0, label=f"{d:g}: constant +3 (ceiling)")
     ax.axhline(0.0, color="grey", lw=0.8)
     metric = rows[0]["metric"] if rows else "avg_travel_velocity_mps"
-    if rows and "seeds" in rows[0]:
-        title += f" ({rows[0]['seeds']} seed(s) x {rows[0]['steps']} steps per density)"
+    if rows and "seeds" in rows[0]:  # on a second line, so that the title fits the figure
+        title += f"\n({rows[0]['seeds']} seed(s) x {rows[0]['steps']} steps per density)"
     ax.set_xlabel("training frames [env steps]")
     ax.set_ylabel(f"gain in {metric} [%]")
-    ax.set_title(f"deterministic evaluation: {title}")
+    ax.set_title(f"deterministic evaluation: {title}", fontsize="medium")
     if rows:
-        ax.legend(title="density")
+        ax.legend(title="density", fontsize="small")
     fig.tight_layout()
     fig.savefig(png_path, dpi=100)
     plt.close(fig)

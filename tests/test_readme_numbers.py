@@ -888,3 +888,15 @@ def test_session32_uniform_draws_and_shipped_edge():
             f"{plus3_columns('old')} columns always +3, its critic preferring +3 in "
             f"{above['old']}") in training
     assert float(near["new"].rstrip(" %")) < float(near["old"].rstrip(" %"))
+    # the shipped edge's training curve: from near nothing to near the ceiling, and settled
+    import csv
+
+    with (s31 / "edge_released_shield_unif05_seed2" / "eval_log.csv").open() as fh:
+        by_frames: dict[int, list[float]] = {}
+        for r in csv.DictReader(fh):
+            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
+    start, first = by_frames.pop(0), by_frames.pop(10_200)
+    later = [x for v in by_frames.values() for x in v] + first
+    assert (f"it realises {min(start):.0f}-{max(start):.0f} % of the +3 edge's gain at 0 frames, "
+            f"{min(first):.0f}-{max(first):.0f} % at 10 200 frames, and "
+            f"{min(later):.0f}-{max(later):.0f} % at every evaluation from there") in training

@@ -289,9 +289,9 @@ def test_shipped_shield_edges_load_record_their_training_and_are_picked(model):
 
 
 def test_shipped_released_shield_edge_records_its_recipe():
-    # docs/training.md, "Uniform draws on seven training seeds: the released shield edge
-    # replaced": session 31's seed-2 run with uniform draws, its policy kept at 20 400 frames
-    # by the 3x3 picking evaluation
+    # session 31's seed-2 run with uniform draws, its policy kept at 20 400 frames by the 3x3
+    # picking evaluation; docs/training.md, section
+    # "Uniform draws on seven training seeds: the released shield edge replaced"
     import torch
 
     from mivecc_agents.policies import pretrained_path
