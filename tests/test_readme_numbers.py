@@ -471,6 +471,19 @@ def _picking(run: Path) -> tuple[int, float]:
     return best, min(by_frames[best])
 
 
+def _assert_picked_row(raw: str, pair: Path, table: Path, run: Path,
+                       label: str) -> tuple[list[float], float]:
+    """Assert the doc's row ``| <label> (<frames> frames) | shares | score |`` of a run's kept
+    policy (its EE table ``table`` merged over ``pair``'s E and EE+3 runs) and return
+    (its shares of the +3 edge's gain per density [%], its picking score)."""
+    share = _ceiling_share(_merged_cells(pair, table / "paper_table.csv"), "rv")
+    frames, score = _picking(run)
+    full = f"{label} ({frames:_} frames)".replace("_", " ")
+    assert (f"| {full} | " + " | ".join(f"{x:.0f}" for x in share)
+            + f" | {score:.1f} |") in raw, full
+    return share, score
+
+
 def _picking_shares(table: Path) -> list[float]:
     """The share of the +3 edge's gain EE realises at 900 / 1500 / 2100 veh/lane/h in a
     paper_table CSV with E, EE and EE+3 runs (the picking evaluation's densities) [%]."""
@@ -605,12 +618,9 @@ def test_session31_critic_ensemble_in_training_doc():
     # two more one-critic seeds (5, 6): only the shipped edge reaches the +3 edge
     scores = {}
     for seed in (5, 6):
-        share = _ceiling_share(_merged_cells(pair, s31 / f"pt_sel3x3_seed{seed}_best" /
-                                             "paper_table.csv"), "rv")
-        frames, scores[seed] = _picking(s31 / f"edge_released_shield_sel3x3_seed{seed}")
-        label = f"seed {seed}, one critic ({frames:_} frames)".replace("_", " ")
-        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in share)
-                + f" | {scores[seed]:.1f} |") in raw, label
+        share, scores[seed] = _assert_picked_row(
+            raw, pair, s31 / f"pt_sel3x3_seed{seed}_best",
+            s31 / f"edge_released_shield_sel3x3_seed{seed}", f"seed {seed}, one critic")
         assert max(share) < 100
         if seed == 5:
             assert all(99 <= share[i] < 100 for i in (3, 4))  # within 1 point at 1200, 1500
@@ -621,12 +631,9 @@ def test_session31_critic_ensemble_in_training_doc():
     assert f"scores above {scores[5]:.1f} on the picking seeds" in training
     # recipe 2 with the actor's pre-activations bounded by 4 (seeds 1, 2): worse
     for seed in (1, 2):
-        share = _ceiling_share(_merged_cells(pair, s31 / f"pt_bound4_seed{seed}_best" /
-                                             "paper_table.csv"), "rv")
-        frames, score = _picking(s31 / f"edge_released_shield_bound4_seed{seed}")
-        label = f"seed {seed}, one critic, bound 4 ({frames:_} frames)".replace("_", " ")
-        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in share)
-                + f" | {score:.1f} |") in raw, label
+        share, _ = _assert_picked_row(raw, pair, s31 / f"pt_bound4_seed{seed}_best",
+                                      s31 / f"edge_released_shield_bound4_seed{seed}",
+                                      f"seed {seed}, one critic, bound 4")
         assert min(share) < min(one[seed])
     bounded = [min(_ceiling_share(_merged_cells(pair, s31 / f"pt_bound4_seed{seed}_best" /
                                                 "paper_table.csv"), "rv")) for seed in (1, 2)]
@@ -635,12 +642,9 @@ def test_session31_critic_ensemble_in_training_doc():
     # recipe 2 with uniform draws in the exploration (seeds 1, 2)
     uniform = {}
     for seed in (0, 1, 2, 3):
-        uniform[seed] = _ceiling_share(_merged_cells(pair, s31 / f"pt_unif05_seed{seed}_best"
-                                                     / "paper_table.csv"), "rv")
-        frames, score = _picking(s31 / f"edge_released_shield_unif05_seed{seed}")
-        label = f"seed {seed}, one critic, uniform 0.05 ({frames:_} frames)".replace("_", " ")
-        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in uniform[seed])
-                + f" | {score:.1f} |") in raw, label
+        uniform[seed], _ = _assert_picked_row(raw, pair, s31 / f"pt_unif05_seed{seed}_best",
+                                              s31 / f"edge_released_shield_unif05_seed{seed}",
+                                              f"seed {seed}, one critic, uniform 0.05")
         assert max(uniform[seed]) < 100
     assert (f"realises {min(uniform[2]):.1f}-{max(uniform[2]):.1f} % of the +3 edge's gain at "
             "every density") in training
@@ -750,12 +754,9 @@ def test_session32_uniform_draws_and_shipped_edge():
     # the new rows: seeds 4-6 with p = 0.05, seed 0 with p = 0.2
     for seed, tag, p in ((4, "unif05", "0.05"), (5, "unif05", "0.05"), (6, "unif05", "0.05"),
                          (0, "unif20", "0.2")):
-        share = _ceiling_share(_merged_cells(pair, s32 / f"pt_{tag}_seed{seed}_best" /
-                                             "paper_table.csv"), "rv")
-        frames, score = _picking(s32 / f"edge_released_shield_{tag}_seed{seed}")
-        label = f"seed {seed}, one critic, uniform {p} ({frames:_} frames)".replace("_", " ")
-        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in share)
-                + f" | {score:.1f} |") in raw, label
+        share, score = _assert_picked_row(raw, pair, s32 / f"pt_{tag}_seed{seed}_best",
+                                          s32 / f"edge_released_shield_{tag}_seed{seed}",
+                                          f"seed {seed}, one critic, uniform {p}")
         if tag == "unif20":
             assert (f"(weakest density {min(share):.0f} % against {min(uniform[0]):.0f} %, "
                     f"picking score {score:.1f} against {uniform_scores[0]:.1f}; both far from "
