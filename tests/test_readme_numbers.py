@@ -167,16 +167,15 @@ def test_shield_edge_figures(default, released):
     under the shield (seeds 0-2), and the released model's EEC-vs-E span with either edge,
     recomputed from the committed runs (the shares as paper_targets.py prints them)."""
     text = " ".join(README.split())
-    s28 = ROOT / "docs" / "results" / "training" / "session28"  # the shipped shield edges,
 
     def share(cells: dict, key: str) -> str:
         ours, ceiling = (_gains(cells, s, "E", key) for s in ("EE", "EE+3"))
         ratio = [100 * o / c for o, c in zip(ours, ceiling, strict=True) if round(c, 2) > 0]
         return f"{min(ratio):.0f}-{max(ratio):.0f} %"
 
-    s32 = ROOT / "docs" / "results" / "training" / "session32"  # the released one since then
-    shield_edge = {m: _cells(s / f"pt_shield_pair_{m}" / "paper_table.csv")
-                   for m, s in (("released", s32), ("default", s28))}
+    s32 = ROOT / "docs" / "results" / "training" / "session32"  # both since then
+    shield_edge = {m: _cells(s32 / f"pt_shield_pair_{m}" / "paper_table.csv")
+                   for m in ("released", "default")}
     trained_without = {m: _cells(SHIELD / f"pt_shield_{m}" / "paper_table.csv")
                        for m in ("released", "default")}
     assert (f"realises {share(shield_edge['released'], 'rv')} (released model) and "
@@ -886,3 +885,104 @@ def test_session32_uniform_draws_and_shipped_edge():
     assert (f"it realises {min(start):.0f}-{max(start):.0f} % of the +3 edge's gain at 0 frames, "
             f"{min(first):.0f}-{max(first):.0f} % at 10 200 frames, and "
             f"{min(later):.0f}-{max(later):.0f} % at every evaluation from there") in training
+
+
+def test_session32_default_shield_edge():
+    """Session 32: the default model's shield edge trained with uniform draws (seeds 0, 1),
+    the seed-1 edge that replaced session 28's, and the default shipped pair's regenerated
+    tables (average travel velocity), from the committed files."""
+    import csv
+    import re
+
+    raw = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    training = " ".join(raw.split())
+    results = ROOT / "docs" / "results" / "training"
+    s28, s32 = results / "session28", results / "session32"
+    pair = s28 / "pt_shield_pair_default" / "paper_table.csv"
+
+    def shares(*tables: Path) -> list[float]:
+        return _ceiling_share(_merged_cells(pair, *tables), "v")
+
+    # the replaced edge: its shares and its picking score on the picking seeds
+    picks = _merged_cells(s32 / "pt_pick_paper_shipped" / "paper_table.csv")
+    old_score = min(100 * (picks[("EE", d)]["v"] / picks[("E", d)]["v"] - 1)
+                    / (picks[("EE+3", d)]["v"] / picks[("E", d)]["v"] - 1)
+                    for d in (900, 1500, 2100))
+    assert ("| session 28's seed 0 (shipped until session 32) | "
+            + " | ".join(f"{x:.0f}" for x in shares()) + f" | {old_score:.1f} |") in raw
+    scores = {}
+    for seed in (0, 1):
+        table = s32 / f"pt_paper_unif05_seed{seed}_best" / "paper_table.csv"
+        frames, scores[seed] = _picking(s32 / f"edge_paper_shield_unif05_seed{seed}")
+        label = f"seed {seed}, uniform 0.05 ({frames:_} frames)".replace("_", " ")
+        assert (f"| {label} | " + " | ".join(f"{x:.0f}" for x in shares(table))
+                + f" | {scores[seed]:.1f} |") in raw, label
+    assert scores[1] > max(scores[0], old_score)
+    assert _picking(s32 / "edge_paper_shield_unif05_seed1")[0] == 40_800
+    # the shipped pair's tables, new against session 28's
+    new, old = ({n: _merged_cells(s / f"pt_shield_pair_default{n}" / "paper_table.csv")
+                 for n in ("", "_s3to7")} for s in (s32, s28))
+
+    def span(cells: dict) -> str:
+        share = _ceiling_share(cells, "v")
+        return f"{min(share):.1f}-{max(share):.1f} %"
+
+    def at(cells: dict) -> str:
+        ds = [str(d) for d, e, c in zip(DENSITIES, _gains(cells, "EE", "E", "v"),
+                                        _gains(cells, "EE+3", "E", "v"), strict=True)
+              if round(e, 2) >= round(c, 2)]
+        return ", ".join(ds[:-1]) + " and " + ds[-1] if len(ds) > 1 else ds[0]
+
+    assert (f"on seeds 0-2 it realises {span(new[''])} of the +3 edge's gain (the replaced "
+            f"edge: {span(old[''])}), on seeds 3-7 {span(new['_s3to7'])} "
+            f"({span(old['_s3to7'])})") in training
+    assert all(min(_ceiling_share(new[n], "v")) > min(_ceiling_share(old[n], "v")) for n in new)
+    assert (f"at or above the +3 edge at {at(new[''])} veh/lane/h on seeds 0-2 and "
+            f"{at(new['_s3to7'])} on seeds 3-7; the replaced edge at {at(old[''])} (seeds 0-2) "
+            f"and {at(old['_s3to7'])} (seeds 3-7)") in training
+    shipped = {(r["density"], r["seed"]): r for r in read_runs_csv(
+        s32 / "pt_shield_pair_default" / "paper_table.csv") if r["scheme"] == "EE"}
+    explicit = {(r["density"], r["seed"]): r for r in read_runs_csv(
+        s32 / "pt_paper_unif05_seed1_best" / "paper_table.csv")}
+    assert shipped.keys() == explicit.keys()
+    assert all(row[k] == explicit[key][k] for key, row in shipped.items()
+               for k in ("avg_travel_velocity_mps", "collisions", "in_network"))
+    assert sum(r["collisions"] for n in ("", "_s3to7", "_6000") for r in read_runs_csv(
+        s32 / f"pt_shield_pair_default{n}" / "paper_table.csv")) == 0
+    n = new[""]
+    for label, values, fmt in (
+            ("seeds 0-2: EE vs E", _gains(n, "EE", "E", "v"), "+.2f"),
+            ("seeds 0-2: EE+3 vs E", _gains(n, "EE+3", "E", "v"), "+.2f"),
+            ("seeds 0-2: share of EE+3 [%]", _ceiling_share(n, "v"), ".0f"),
+            ("seeds 3-7: share of EE+3 [%]", _ceiling_share(new["_s3to7"], "v"), ".0f"),
+            ("seeds 0-2: EEC vs E", _gains(n, "EEC", "E", "v"), "+.2f"),
+            ("seeds 0-2: EEC vs EE", _gains(n, "EEC", "EE", "v"), "+.2f"),
+            ("seeds 0-2: EEC+3 vs EE", _gains(n, "EEC+3", "EE", "v"), "+.2f")):
+        _assert_row(raw, label, values, fmt)
+    cloud = _gains(n, "EEC", "EE", "v")
+    half = PAPER_3X3["EEC vs EE"][2100] / 2
+    assert round(cloud[-1], 2) >= half and all(
+        round(g, 2) < PAPER_3X3["EEC vs EE"][d] / 2
+        for g, d in zip(cloud[:-1], DENSITIES[:-1], strict=True))
+    assert (f"EE is {min(cloud):+.2f} to {max(cloud):+.2f} % on seeds 0-2, half the paper's value "
+            f"at 2100 veh/lane/h ({cloud[-1]:+.2f} % against {half:.2f} %)") in training
+    lead = [round(a, 2) - round(b, 2) for a, b in zip(
+        cloud, _gains(n, "EEC+3", "EE", "v"), strict=True)]
+    assert f"within {min(lead):+.2f} to {max(lead):+.2f} points of the constant" in training
+    # critic check and training curve of the shipped edge
+    check = (s32 / "edge_critic_check_paper_unif05_seed1.md").read_text(encoding="utf-8")
+    near = next(x for x in check.splitlines()
+                if x.startswith("| actor: share of actions within 0.01 of +3 |")).split("|")[3]
+    columns = re.search(r"always_plus3 \((\d+) columns\)", check).group(1)
+    assert (f"Its actions are within 0.01 of +3 in {near.strip()} of 3600 states, {columns} of its "
+            "15 columns +3 in every state probed") in training
+    with (s32 / "edge_paper_shield_unif05_seed1" / "eval_log.csv").open() as fh:
+        by_frames: dict[int, list[float]] = {}
+        for r in csv.DictReader(fh):
+            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
+    start, first = by_frames.pop(0), by_frames.pop(10_200)
+    later = [x for v in by_frames.values() for x in v] + first
+    assert (f"{min(start):.0f}-{max(start):.0f} % of the +3 edge's gain at 0 frames, "
+            f"{min(first):.0f}-{max(first):.0f} % at 10 200 frames, "
+            f"{min(later):.0f}-{max(later):.0f} % from there to 60 000 frames") in training
+    assert min(later) > max(start)

@@ -288,15 +288,18 @@ def test_shipped_shield_edges_load_record_their_training_and_are_picked(model):
         k: str(pretrained_path(k, model)) for k in ("edge", "cloud")}
 
 
-def test_shipped_released_shield_edge_records_its_recipe():
-    # session 32's seed-8 run with uniform draws, its policy kept at 30 600 frames by the 3x3
-    # picking evaluation; docs/training.md, section
-    # "Uniform draws on nine training seeds: the released shield edge replaced"
+@pytest.mark.parametrize(("model", "seed", "frames"), [("released", 8, 30_600),
+                                                    ("paper", 1, 40_800)])
+def test_shipped_shield_edges_record_their_recipe(model, seed, frames):
+    # session 32's runs with uniform draws, each policy kept by the 3x3 picking evaluation;
+    # docs/training.md, sections
+    # "Uniform draws on nine training seeds: the released shield edge replaced" and
+    # "The default model's shield edge with uniform draws"
     import torch
 
     from mivecc_agents.policies import pretrained_path
 
-    ckpt = torch.load(pretrained_path("edge", "released", safety_shield=True),
+    ckpt = torch.load(pretrained_path("edge", model, safety_shield=True),
                       map_location="cpu", weights_only=False)
     preset = ckpt["preset"]
     assert {k: preset[k] for k in ("exploration", "sigma_init", "sigma_end",
@@ -305,7 +308,8 @@ def test_shipped_released_shield_edge_records_its_recipe():
         "exploration": "per_column", "sigma_init": 1.0, "sigma_end": 0.3,
         "explore_uniform_prob": 0.05, "eval_select": "min_ceiling_share", "critic_members": 1,
         "algorithm": "ddpg"}
-    assert ckpt["frames"] == 30_600 and ckpt["extra"]["seed"] == 8
+    assert ckpt["config"]["model"] == model
+    assert ckpt["frames"] == frames and ckpt["extra"]["seed"] == seed
 
 
 def test_constant_policy_is_the_ceiling_coordinator():
