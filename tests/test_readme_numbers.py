@@ -457,15 +457,45 @@ def test_session29_figures_in_training_doc():
     assert cloud in training, cloud
 
 
-def _picking(run: Path) -> tuple[int, float]:
-    """(frames, score) of the policy a run's ``min_ceiling_share`` picking kept: the first
-    evaluation with the largest smallest share over its densities."""
+def _shares_by_frames(run: Path) -> dict[int, list[float]]:
+    """A training run's evaluations (``eval_log.csv``): frames -> the shares of the +3 edge's
+    gain at its densities [%]."""
     import csv
 
     by_frames: dict[int, list[float]] = {}
     with (run / "eval_log.csv").open() as fh:
         for r in csv.DictReader(fh):
             by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
+    return by_frames
+
+
+def _curve_spans(run: Path) -> tuple[list[float], list[float], list[float]]:
+    """A run's training curve as shares of the +3 edge's gain [%]: at 0 frames, at its first
+    evaluation (10 200 frames), and at that one and every later one."""
+    by_frames = _shares_by_frames(run)
+    start, first = by_frames.pop(0), by_frames.pop(10_200)
+    return start, first, [x for v in by_frames.values() for x in v] + first
+
+
+def _assert_same_ee_runs(shipped_table: Path, edge_table: Path) -> None:
+    """The EE runs of a table made with the shipped files equal, field for field, those of a
+    table made with ``--edge`` and the checkpoint the file was exported from."""
+    def ee_runs(table: Path) -> dict:
+        return {(r["density"], r["seed"]): r for r in read_runs_csv(table / "paper_table.csv")
+                if r["scheme"] == "EE"}
+
+    shipped, explicit = ee_runs(shipped_table), ee_runs(edge_table)
+    assert shipped and shipped.keys() == explicit.keys()
+    for key, row in shipped.items():
+        assert all(row[k] == explicit[key][k] for k in (
+            "avg_travel_velocity_mps", "released_velocity_mps", "collisions", "min_ttc_s",
+            "in_network")), key
+
+
+def _picking(run: Path) -> tuple[int, float]:
+    """(frames, score) of the policy a run's ``min_ceiling_share`` picking kept: the first
+    evaluation with the largest smallest share over its densities."""
+    by_frames = _shares_by_frames(run)
     best = max(by_frames, key=lambda f: min(by_frames[f]))
     return best, min(by_frames[best])
 
@@ -742,7 +772,6 @@ def test_session32_uniform_draws_and_shipped_edge():
     """Session 32: uniform draws on training seeds 4-8 (and p = 0.2 on seed 0), recipe 2
     without them on seeds 7-8, the seed-8 edge that learned the +3 edge and replaced the
     released shield edge, and the regenerated shipped-pair tables, from the committed files."""
-    import csv
     import re
     import statistics
 
@@ -814,15 +843,7 @@ def test_session32_uniform_draws_and_shipped_edge():
     assert (f"(picking score {uniform_scores[2]:.1f}; {span(seed2[''])} of the +3 edge's gain on "
             f"seeds 0-2, {span(seed2['_s3to7'])} on seeds 3-7,") in training
     # the shipped table's EE runs are the --edge runs of the kept policy (bit for bit)
-    shipped = {(r["density"], r["seed"]): r for r in read_runs_csv(
-        s32 / "pt_shield_pair_released" / "paper_table.csv") if r["scheme"] == "EE"}
-    explicit = {(r["density"], r["seed"]): r for r in read_runs_csv(
-        s32 / "pt_unif05_seed8_best" / "paper_table.csv")}
-    assert shipped.keys() == explicit.keys()
-    for key, row in shipped.items():
-        assert all(row[k] == explicit[key][k] for k in (
-            "avg_travel_velocity_mps", "released_velocity_mps", "collisions", "min_ttc_s",
-            "in_network")), key
+    _assert_same_ee_runs(s32 / "pt_shield_pair_released", s32 / "pt_unif05_seed8_best")
 
     # where the shipped edge is at the +3 edge (gains as printed): all but 900, 0.01 short
     def short(cells: dict) -> list[float]:
@@ -876,12 +897,7 @@ def test_session32_uniform_draws_and_shipped_edge():
     assert (f"is within 0.01 of +3 in {p2[near][1]} of its actions ({c2} columns always +3), and "
             f"session 28's seed-0 edge in {p0[near][1]} ({c0} columns)") in training
     # the shipped edge's training curve: from near nothing to the ceiling, and settled
-    with (s32 / "edge_released_shield_unif05_seed8" / "eval_log.csv").open() as fh:
-        by_frames: dict[int, list[float]] = {}
-        for r in csv.DictReader(fh):
-            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
-    start, first = by_frames.pop(0), by_frames.pop(10_200)
-    later = [x for v in by_frames.values() for x in v] + first
+    start, first, later = _curve_spans(s32 / "edge_released_shield_unif05_seed8")
     assert (f"it realises {min(start):.0f}-{max(start):.0f} % of the +3 edge's gain at 0 frames, "
             f"{min(first):.0f}-{max(first):.0f} % at 10 200 frames, and "
             f"{min(later):.0f}-{max(later):.0f} % at every evaluation from there") in training
@@ -891,7 +907,6 @@ def test_session32_default_shield_edge():
     """Session 32: the default model's shield edge trained with uniform draws (seeds 0, 1),
     the seed-1 edge that replaced session 28's, and the default shipped pair's regenerated
     tables (average travel velocity), from the committed files."""
-    import csv
     import re
 
     raw = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
@@ -940,13 +955,7 @@ def test_session32_default_shield_edge():
     assert (f"at or above the +3 edge at {at(new[''])} veh/lane/h on seeds 0-2 and "
             f"{at(new['_s3to7'])} on seeds 3-7; the replaced edge at {at(old[''])} (seeds 0-2) "
             f"and {at(old['_s3to7'])} (seeds 3-7)") in training
-    shipped = {(r["density"], r["seed"]): r for r in read_runs_csv(
-        s32 / "pt_shield_pair_default" / "paper_table.csv") if r["scheme"] == "EE"}
-    explicit = {(r["density"], r["seed"]): r for r in read_runs_csv(
-        s32 / "pt_paper_unif05_seed1_best" / "paper_table.csv")}
-    assert shipped.keys() == explicit.keys()
-    assert all(row[k] == explicit[key][k] for key, row in shipped.items()
-               for k in ("avg_travel_velocity_mps", "collisions", "in_network"))
+    _assert_same_ee_runs(s32 / "pt_shield_pair_default", s32 / "pt_paper_unif05_seed1_best")
     assert sum(r["collisions"] for n in ("", "_s3to7", "_6000") for r in read_runs_csv(
         s32 / f"pt_shield_pair_default{n}" / "paper_table.csv")) == 0
     n = new[""]
@@ -976,12 +985,7 @@ def test_session32_default_shield_edge():
     columns = re.search(r"always_plus3 \((\d+) columns\)", check).group(1)
     assert (f"Its actions are within 0.01 of +3 in {near.strip()} of 3600 states, {columns} of its "
             "15 columns +3 in every state probed") in training
-    with (s32 / "edge_paper_shield_unif05_seed1" / "eval_log.csv").open() as fh:
-        by_frames: dict[int, list[float]] = {}
-        for r in csv.DictReader(fh):
-            by_frames.setdefault(int(r["frames"]), []).append(float(r["ceiling_share_pct"]))
-    start, first = by_frames.pop(0), by_frames.pop(10_200)
-    later = [x for v in by_frames.values() for x in v] + first
+    start, first, later = _curve_spans(s32 / "edge_paper_shield_unif05_seed1")
     assert (f"{min(start):.0f}-{max(start):.0f} % of the +3 edge's gain at 0 frames, "
             f"{min(first):.0f}-{max(first):.0f} % at 10 200 frames, "
             f"{min(later):.0f}-{max(later):.0f} % from there to 60 000 frames") in training
