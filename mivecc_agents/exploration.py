@@ -23,6 +23,7 @@ from typing import Any
 
 import torch
 from tensordict.nn import TensorDictModuleBase
+from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import AdditiveGaussianModule
 
 from mivecc_agents.presets import check_uniform_exploration
@@ -68,8 +69,6 @@ class UniformColumnsModule(TensorDictModuleBase):
         self.inner.step(frames)
 
     def forward(self, tensordict: Any) -> Any:
-        from torchrl.envs.utils import ExplorationType, exploration_type
-
         tensordict = self.inner(tensordict)
         if exploration_type() not in (ExplorationType.RANDOM, None):
             return tensordict  # deterministic evaluation: no noise at all
