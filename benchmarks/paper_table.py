@@ -3,7 +3,10 @@
 For every grid, density, scheme and seed this runs one evaluation episode with the shipped
 pretrained coordinators (or the checkpoints given with ``--edge`` / ``--cloud``); all densities
 and seeds of a (grid, scheme) run as one batch of environments
-(:func:`mivecc_agents.evaluation.evaluate_batch`, each equal to its single run), then writes
+(:func:`mivecc_agents.evaluation.evaluate_batch`; with ``--per-env-calls`` each run equals
+its single run bit for bit, otherwise a learned policy called on the stacked batch can round
+an action differently in rare steps, and that run then differs from its single run), then
+writes
 
 * ``paper_table.csv`` - one row per run,
 * ``paper_table.md`` - per grid and density: mean average travel velocity of each scheme, the
@@ -66,7 +69,7 @@ COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"),
 
 
 def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None, str,
-                    int | None, dict[str, Any]]) -> list[dict[str, Any]]:
+                    int | None, dict[str, Any], bool]) -> list[dict[str, Any]]:
     """All densities and seeds of one (scheme, grid) as one batch of environments."""
     import os
 
@@ -75,7 +78,7 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     from mivecc_agents.policies import ceiling_policy, pretrained_policies
 
     (scheme, rows, cols, densities, steps, seeds, edge_path, cloud_path, model, cloud_period,
-     overrides) = job
+     overrides, per_env_calls) = job
     config = from_overrides(model=model, **overrides)
     policies = pretrained_policies(model, edge=edge_path, cloud=cloud_path,
                                    safety_shield=config.safety_shield)
@@ -87,7 +90,8 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both
     extra = {"cloud_period": cloud_period} if cloud_period and run_scheme == "EEC" else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
-                         progress=False, warn=False, model=model, **overrides, **extra)
+                         progress=False, warn=False, stack_policies=not per_env_calls,
+                         model=model, **overrides, **extra)
     for row in out:
         row.update(overrides)
         row.update(scheme=scheme, model=model)
@@ -396,6 +400,11 @@ def main(argv: Sequence[str] | None = None) -> Path:
                         help="other config fields for every run, e.g. cloud_graphs=per_lane "
                         "(`mivecc fields` lists them; not the ones the options above set)")
     parser.add_argument("--workers", type=cli_args.count(1), default=2)
+    parser.add_argument("--per-env-calls", action="store_true",
+                        help="call the learned policies once per environment, so that every "
+                        "run equals its single run bit for bit whatever --seeds and "
+                        "--densities (slower; default: one call on the stacked batch where a "
+                        "check finds that exact)")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/paper_table"))
     parser.add_argument("--from-csv", type=cli_args.existing_file, nargs="+", default=None,
                         help="build the tables from earlier runs' paper_table.csv files "
@@ -415,7 +424,8 @@ def main(argv: Sequence[str] | None = None) -> Path:
         r, c = (int(x) for x in grid.split("x"))
         for scheme in args.schemes:
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
-                         args.edge, args.cloud, args.model, args.cloud_period, overrides))
+                         args.edge, args.cloud, args.model, args.cloud_period, overrides,
+                         args.per_env_calls))
     if args.from_csv:
         rows = merge_runs([read_runs_csv(path) for path in args.from_csv])
     elif args.workers > 1:

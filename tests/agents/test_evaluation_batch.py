@@ -221,6 +221,50 @@ def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
         assert _same(r, single) == []
 
 
+def test_per_environment_calls_make_every_action_independent_of_the_batch() -> None:
+    # The stacking check samples random graphs; on real graphs, with two torch threads, the
+    # shipped released shield edge (which passes it) rounded one action one ulp differently at
+    # step 77 of (2100 veh/lane/h, seed 2) in this batch on the machine of session 33. With
+    # stack_policies=False every call has one environment's shapes: each environment's actions
+    # at every step are its single run's, bit for bit, at any thread count.
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)  # the conftest's one thread hides the stacked rounding here
+    try:
+        _assert_per_environment_calls_match_single_run()
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _assert_per_environment_calls_match_single_run() -> None:
+    edge = pretrained_policies("released", safety_shield=True)["edge"]
+    sizes: list[int] = []
+
+    def recorded(store: list[np.ndarray], env: int | None):
+        def on_step(before, edge_actions, cloud, after) -> None:
+            store.append(edge_actions[env if env is not None else 0].copy())
+        return on_step
+
+    def counted(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        sizes.append(obs.shape[0])
+        return edge(obs, mask)
+
+    in_batch: list[np.ndarray] = []
+    alone: list[np.ndarray] = []
+    common = dict(progress=False, model="released", safety_shield=True)
+    batch = evaluate_batch("EE", 3, 3, [300.0, 2100.0], 100, [0, 1, 2],
+                           policies={"edge": counted}, stack_policies=False,
+                           on_step=recorded(in_batch, 5), **common)
+    assert set(sizes) == {9}  # one call per environment and step, no stacking check
+    single = evaluate_batch("EE", 3, 3, [2100.0], 100, [2], policies={"edge": edge},
+                            on_step=recorded(alone, None), **common)
+    assert (batch[5]["density"], batch[5]["seed"]) == (2100.0, 2)
+    assert len(in_batch) == len(alone) == 100
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(in_batch, alone, strict=True))
+    assert _same(batch[5], single[0]) == []
+
+
 @pytest.mark.parametrize("cloud", ["constant", "shipped"])
 def test_per_lane_cloud_batch_equals_one_run_per_seed(cloud: str) -> None:
     """The paper's per-lane cloud graphs (``cloud_graphs="per_lane"``): one policy call on every
