@@ -17,8 +17,9 @@ scheme uses but for which no policy is given acts with zeros; the result then sa
 ``"coordinator_actions": "zero"`` and a warning is printed.
 
 :func:`evaluate_batch` runs several seeds and densities of one configuration as one batch
-(:class:`mivecc_env.batched.BatchedMiVeCCEnv`): the result of each (density, seed) equals what
-:func:`evaluate_scheme` gives for it, in a fraction of the time. A policy is called once on
+(:class:`mivecc_env.batched.BatchedMiVeCCEnv`): the result of each (density, seed) is what
+:func:`evaluate_scheme` gives for it (bit for bit with ``stack_policies=False``, below), in a
+fraction of the time. A policy is called once on
 all environments' graphs stacked where a check on random graphs finds that it gives the bits
 of one call per environment (:func:`stacking_is_exact`, checked before the run), else once per
 environment with the B = 1 shapes (a network's float rounding can depend on the batch size).
@@ -316,7 +317,8 @@ def evaluate_batch(
 
     Returns:
         One result per (density, seed), densities outer and seeds inner, each with the keys of
-        :func:`evaluate_scheme` (the same values for the traffic metrics); ``steps_per_s`` is
+        :func:`evaluate_scheme` (the same values for the traffic metrics, bit for bit with
+        ``stack_policies=False``; a stacked call can leave that in rare steps); ``steps_per_s`` is
         the environment steps of the whole batch per wall-clock second and ``batch_size`` the
         number of environments B.
 
@@ -466,11 +468,11 @@ def stacking_is_exact(policy: Policy | None, n_envs: int, n_agents: int, k: int)
     shipped actors' dense layers round differently at one row per environment: the clouds,
     and the edges on 1x1 grids). It is checked once per shape, on random graphs and masks (a
     generator seeded here). That is a sample, not a proof: whether two summation orders round
-    alike depends on the values, and session 33 measured the shipped released shield edge,
-    which passes this check, round one action of one node differently in 18 of 9000
-    environment-steps of real graphs (3x3, 6 environments). ``evaluate_batch(...,
-    stack_policies=False)`` never stacks. A policy that fails on the stacked shapes is not
-    stacked.
+    alike depends on the values, and with two torch threads the shipped released shield edge,
+    which passes this check, rounded one action differently in 14 of 9000 environment-steps of
+    real graphs (3x3, 6 environments; ``benchmarks/stacking_audit.py``, session 33).
+    ``evaluate_batch(..., stack_policies=False)`` never stacks. A policy that fails on the
+    stacked shapes is not stacked.
 
     Args:
         n_envs / n_agents / k: the batch, the agents per environment, the graph size K.

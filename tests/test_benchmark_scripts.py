@@ -13,6 +13,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
+import ceiling_resolution
 import cloud_critic_check
 import cloud_pick_counts
 import cloud_reward_check
@@ -27,6 +28,7 @@ import released_reference
 import released_study
 import rules_study
 import shield_stress
+import stacking_audit
 import table_diff
 import trace_collisions
 
@@ -525,3 +527,32 @@ def test_headroom_search_writes_its_report(tmp_path: Path) -> None:
         assert (tmp_path / f"headroom_cloud_released.{name}").stat().st_size > 0
     text = (tmp_path / "headroom_cloud_released.md").read_text()
     assert "share of the constant +3 cloud's gain over MiVeCC-EE (shipped edge)" in text
+
+
+def test_ceiling_resolution_compares_constants_below_the_ceiling(tmp_path: Path) -> None:
+    out = ceiling_resolution.main(["--kind", "edge", "--grid", "1x1", "--densities", "900",
+                                   "--seeds", "0", "--steps", "400", "--deltas", "ulp", "0.5",
+                                   "--workers", "1", "--out", str(tmp_path)])
+    with open(tmp_path / "ceiling_resolution.csv") as fh:
+        rows = {r["variant"]: r for r in csv.DictReader(fh)}
+    assert set(rows) == {"shipped", "3.0", "2.999999761581421", "2.5"}
+    assert float(rows["3.0"]["minus_ceiling_points"]) == 0.0
+    assert len({r["baseline_mps"] for r in rows.values()}) == 1  # one baseline for all
+    gains = {v: float(r["gain_pct"]) for v, r in rows.items()}
+    assert all(np.isfinite(list(gains.values()))) and gains["2.5"] != gains["3.0"]
+    for r in rows.values():  # the difference as paper_targets.py rounds the gains
+        assert float(r["minus_ceiling_points"]) == pytest.approx(
+            round(float(r["gain_pct"]), 2) - round(gains["3.0"], 2), abs=1e-12)
+    text = out.read_text()
+    assert "| edge, " not in text and "minus the +3 ceiling's gain [points]" in text
+    assert "fall short of +3 by at most" in text
+
+
+def test_stacking_audit_counts_every_environment_step(tmp_path: Path) -> None:
+    out = stacking_audit.main(["--model", "released", "--densities", "300", "2100", "--seeds",
+                               "0", "--steps", "60", "--out", str(tmp_path)])
+    report = json.loads(out.read_text())
+    assert (report["environments"], report["environment_steps"]) == (2, 120)
+    assert len(report["first"]) == min(5, report["environment_steps_that_differ"])
+    assert all(0 <= f["step"] < 60 and 0 <= f["env"] < 2 for f in report["first"])
+    assert isinstance(report["random_graph_check_says_exact"], bool)

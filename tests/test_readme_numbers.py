@@ -990,3 +990,105 @@ def test_session32_default_shield_edge():
             f"{min(first):.0f}-{max(first):.0f} % at 10 200 frames, "
             f"{min(later):.0f}-{max(later):.0f} % from there to 60 000 frames") in training
     assert min(later) > max(start)
+
+
+#: Session 33's constant coordinators below +3, by rank (largest action first), as labelled.
+_BELOW_3 = ("+3 - 2.4e-7", "+3 - 1e-4", "+3 - 0.01")
+
+
+def _resolution_rows(kind: str) -> dict[str, list[float]]:
+    """``ceiling_resolution.csv`` of session 33's ``kind`` run: label -> the differences from
+    the +3 ceiling's gain per density [points] (the shipped policy and each constant below +3)."""
+    import csv
+
+    path = (ROOT / "docs" / "results" / "training" / "session33" / f"resolution_{kind}_released"
+            / "ceiling_resolution.csv")
+    by_variant: dict[str, list[float]] = {}
+    with path.open() as fh:
+        for r in csv.DictReader(fh):
+            by_variant.setdefault(r["variant"], []).append(float(r["minus_ceiling_points"]))
+    constants = sorted((v for v in by_variant if v not in ("shipped", "3.0")), key=float,
+                       reverse=True)
+    assert len(constants) == len(_BELOW_3) and float(constants[0]) == pytest.approx(3 - 2.4e-7)
+    rows = {f"{kind}, shipped": by_variant["shipped"]}
+    rows.update({f"{kind}, {label}": by_variant[v]
+                 for label, v in zip(_BELOW_3, constants, strict=True)})
+    return rows
+
+
+def _span_points(values: list[float]) -> str:
+    return f"{min(values):+.2f} to {max(values):+.2f}"
+
+
+def _picking_row(run: Path, label: str) -> str:
+    """A doc row: each evaluation's smallest share of the ceiling's gain [%], and the pick."""
+    by_frames = _shares_by_frames(run)
+    frames, score = _picking(run)
+    cells = [f"{min(by_frames[f]):.0f}" if f in by_frames else "-"
+             for f in range(0, 120_001, 15_000)]
+    return (f"| {label} | " + " | ".join(cells)
+            + f" | {score:.1f} ({frames:_} frames) |".replace("_", " "))
+
+
+def test_session33_ceiling_resolution_and_stacking_audit():
+    """Session 33: constant coordinators a hair below +3 against the +3 ceiling (the table's
+    resolution), the stacking audits, and the clouds retrained with uniform draws, from the
+    committed files."""
+    import json
+    import re
+
+    raw = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    training = " ".join(raw.split())
+    s33 = ROOT / "docs" / "results" / "training" / "session33"
+    rows = {**_resolution_rows("cloud"), **_resolution_rows("edge")}
+    for label, values in rows.items():
+        _assert_row(raw, label, values, "+.2f")
+    cloud_ulp, edge_ulp = rows["cloud, +3 - 2.4e-7"], rows["edge, +3 - 2.4e-7"]
+    assert f"is {_span_points(cloud_ulp)} points from the +3 cloud" in training
+    readme = " ".join(README.split())
+    assert (f"below +3 land {_span_points(edge_ulp)} points (edge) and "
+            f"{_span_points(cloud_ulp)} points (cloud) from the +3 ceilings") in readme
+    assert f"the edge's is {_span_points(edge_ulp)}" in training
+    constants = [x for k, v in rows.items() if "+3 -" in k for x in v]
+    shipped = rows["cloud, shipped"] + rows["edge, shipped"]
+    assert min(constants) <= min(shipped) and max(shipped) <= max(constants)
+    assert (f"their cells here are {_span_points(rows['cloud, shipped'])} (cloud) and "
+            f"{_span_points(rows['edge, shipped'])} (edge) points") in training
+    for kind in ("cloud", "edge"):
+        md = (s33 / f"resolution_{kind}_released" / "ceiling_resolution.md").read_text()
+        short = float(re.search(r"fall short of \+3 by at most (\S+) m/s", md).group(1))
+        assert f"{short:.2g}".replace("e-07", "e-7") in training, (kind, short)
+        assert f"{short:.2g}".replace("e-07", "e-7").replace("0.00012", "1.2e-4") in readme
+    check = (s33 / "cloud_critic_check_shipped_shield.md").read_text(encoding="utf-8")
+    assert "400 cloud states" in check and "always_plus3 (60 columns)" in check
+    assert "state_dependent (0 columns)" in check
+    # the committed table's cloud cells the section quotes (session 32, Intel Xeon)
+    pair = _merged_cells(s33.parent / "session32" / "pt_shield_pair_released" / "paper_table.csv")
+    lead = [round(a, 2) - round(b, 2) for a, b in zip(
+        _gains(pair, "EEC", "EE", "rv"), _gains(pair, "EEC+3", "EE", "rv"), strict=True)]
+    assert "(-0.03 to +0.02 in the committed table)" in training
+    assert _span_points(lead) == "-0.03 to +0.02"
+    # the stacking audits
+    t2, t1, b21 = (json.loads((s33 / f"stacking_audit_{n}.json").read_text())
+                   for n in ("t2", "t1", "t1_b21"))
+    assert (t2["environment_steps_that_differ"], t2["environment_steps"]) == (14, 9000)
+    assert t2["random_graph_check_says_exact"] and t2["nodes"] == [8]
+    assert t2["all_in_real_columns"] and t2["largest_difference_mps2"] == pytest.approx(2.4e-7,
+                                                                                        rel=0.01)
+    assert t2["first"][0] == {"step": 77, "env": 5}  # (2100 veh/lane/h, seed 2) of 2 x 3
+    assert t1["environment_steps_that_differ"] == 0 == b21["environment_steps_that_differ"]
+    assert (t1["environment_steps"], b21["environment_steps"]) == (9000, 31_500)
+    assert "in 14 of 9000 environment-steps" in training
+    assert "nor in 31 500 environment-steps" in training
+    # the clouds retrained with uniform draws, against the shipped cloud on the picking seeds
+    scores = {}
+    for seed in (0, 1):
+        run = s33 / f"cloud_released_shield_unif05_seed{seed}"
+        assert _picking_row(run, f"seed {seed}") in raw
+        scores[seed] = _picking(run)[1]
+    picks = _merged_cells(s33 / "pt_pick_cloud_shipped" / "paper_table.csv")
+    shipped_score = min(100 * (picks[("EEC", d)]["rv"] / picks[("EE", d)]["rv"] - 1)
+                        / (picks[("EEC+3", d)]["rv"] / picks[("EE", d)]["rv"] - 1)
+                        for d in (900, 1500, 2100))
+    assert f"The shipped cloud scores {shipped_score:.1f} on the same seeds" in training
+    assert shipped_score > max(scores.values())
