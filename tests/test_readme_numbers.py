@@ -1080,6 +1080,13 @@ def test_session33_ceiling_resolution_and_stacking_audit():
     assert (t1["environment_steps"], b21["environment_steps"]) == (9000, 31_500)
     assert "in 14 of 9000 environment-steps" in training
     assert "nor in 31 500 environment-steps" in training
+    timing = s33 / "per_env_calls_timing"
+    assert "| EE | 21 / 21 |" in (timing / "table_diff.md").read_text(encoding="utf-8")
+    walls = {line.split()[0]: line.split()[4] for line in (  # the median
+        timing / "farm_bench.txt").read_text(encoding="utf-8").splitlines()
+        if line.startswith(("A wall", "B wall", "A/B wall"))}
+    assert (f"median wall of {float(walls['A']):.1f} s against {float(walls['B']):.1f} s"
+            in training)
     # the clouds retrained with uniform draws, against the shipped cloud on the picking seeds
     scores = {}
     for seed in (0, 1):
