@@ -44,9 +44,8 @@ from mivecc_env import cli_args
 OWN_FIELDS = {"rows": "--grid", "cols": "--grid", "density_vplh": "--densities",
               "scheme": "--kind", "max_steps": "--steps", "model": "--model",
               "cloud_period": "--cloud-period"}
-#: The ceiling's action [m/s^2] (as ``mivecc_agents.policies.CEILING_ACCEL_MPS2``).
-CEILING = 3.0
-#: One float32 unit in the last place below +3 [m/s^2].
+#: One float32 unit in the last place below +3 [m/s^2] (the ceiling's action,
+#: ``mivecc_agents.policies.CEILING_ACCEL_MPS2``, imported with torch where it is used).
 ULP_BELOW_3 = float(3.0 - np.nextafter(np.float32(3.0), np.float32(0.0)))
 
 
@@ -64,13 +63,14 @@ def _run(job: tuple[str, str, dict[str, Any]]) -> tuple[str, list[dict[str, Any]
     import torch
 
     from mivecc_agents.evaluation import evaluate_batch
-    from mivecc_agents.policies import constant_policy, pretrained_policies
+    from mivecc_agents.policies import CEILING_ACCEL_MPS2, constant_policy, pretrained_policies
+    from mivecc_env.config import from_overrides
 
     torch.set_num_threads(1)
     variant, kind, a = job
-    shield = bool(a["overrides"].get("safety_shield", False))
-    shipped = pretrained_policies(a["model"], safety_shield=shield)
-    k = 15 if kind == "edge" else 60
+    config = from_overrides(model=a["model"], **a["overrides"])
+    shipped = pretrained_policies(a["model"], safety_shield=config.safety_shield)
+    k = getattr(config, f"k_{kind}")
     policies: dict[str, Any] = {} if kind == "edge" else {"edge": shipped["edge"]}
     shortfall = [0.0]
     if variant == "shipped":
@@ -82,7 +82,7 @@ def _run(job: tuple[str, str, dict[str, Any]]) -> tuple[str, list[dict[str, Any]
         acts, mask = (edge, before.edge_mask) if kind == "edge" else (cloud, before.cloud_mask)
         real = (mask > 0) & np.isfinite(acts)
         if real.any():
-            shortfall[0] = max(shortfall[0], float(np.max(CEILING - acts[real])))
+            shortfall[0] = max(shortfall[0], float(np.max(CEILING_ACCEL_MPS2 - acts[real])))
 
     if variant == "baseline":
         scheme = "E" if kind == "edge" else "EE"
@@ -118,10 +118,13 @@ def main(argv: Sequence[str] | None = None) -> Path:
     for option in ("seeds", "densities", "deltas"):
         cli_args.check_distinct(f"--{option}", getattr(args, option))
     overrides = config_overrides(args.set_items, args.model, OWN_FIELDS)
+    from mivecc_agents.policies import CEILING_ACCEL_MPS2
+
     common = dict(rows=args.grid[0], cols=args.grid[1], densities=list(args.densities),
                   steps=args.steps, seeds=list(args.seeds), model=args.model,
                   cloud_period=args.cloud_period, overrides=overrides)
-    constants = [repr(CEILING)] + [repr(float(np.float32(CEILING - d))) for d in args.deltas]
+    constants = [repr(CEILING_ACCEL_MPS2)] + [
+        repr(float(np.float32(CEILING_ACCEL_MPS2 - d))) for d in args.deltas]
     jobs = [(v, args.kind, common) for v in ["baseline", "shipped", *constants]]
     with mp.get_context("spawn").Pool(args.workers) as pool:
         done = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="runs", file=sys.stderr))
@@ -131,6 +134,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
 def write_report(done: list[tuple[str, list[dict[str, Any]], float]], args: Any,
                  argv: Sequence[str] | None) -> Path:
     """``ceiling_resolution.md`` and ``.csv`` from the runs (module docstring)."""
+    from mivecc_agents.policies import CEILING_ACCEL_MPS2
     from mivecc_agents.train_eval import gain_pct, headline_metric
 
     metric = headline_metric(args.model)
@@ -140,7 +144,7 @@ def write_report(done: list[tuple[str, list[dict[str, Any]], float]], args: Any,
     variants = [v for v, _, _ in done if v != "baseline"]
     gains = {v: {d: gain_pct(velocity[v][d], velocity["baseline"][d]) for d in args.densities}
              for v in variants}
-    ceiling = repr(CEILING)
+    ceiling = repr(CEILING_ACCEL_MPS2)
     rows = [{"variant": v, "density": d, "velocity_mps": velocity[v][d],
              "baseline_mps": velocity["baseline"][d], "gain_pct": gains[v][d],
              "minus_ceiling_points": round(gains[v][d], 2) - round(gains[ceiling][d], 2)}

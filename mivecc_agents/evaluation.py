@@ -19,10 +19,10 @@ scheme uses but for which no policy is given acts with zeros; the result then sa
 :func:`evaluate_batch` runs several seeds and densities of one configuration as one batch
 (:class:`mivecc_env.batched.BatchedMiVeCCEnv`): the result of each (density, seed) is what
 :func:`evaluate_scheme` gives for it (bit for bit with ``stack_policies=False``, below), in a
-fraction of the time. A policy is called once on
-all environments' graphs stacked where a check on random graphs finds that it gives the bits
-of one call per environment (:func:`stacking_is_exact`, checked before the run), else once per
-environment with the B = 1 shapes (a network's float rounding can depend on the batch size).
+fraction of the time. A policy is called once on all environments' graphs stacked where a
+check on random graphs finds that it gives the bits of one call per environment
+(:func:`stacking_is_exact`, checked before the run), else once per environment with the B = 1
+shapes (a network's float rounding can depend on the batch size).
 That check is a sample: on real graphs a stacked network can still round one action one unit
 in the last place differently in rare steps, and the run then diverges from the environment's
 run alone. With ``stack_policies=False`` every call has the B = 1 shapes, so each
