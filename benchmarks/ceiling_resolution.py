@@ -64,6 +64,7 @@ def _run(job: tuple[str, str, dict[str, Any]]) -> tuple[str, list[dict[str, Any]
 
     from mivecc_agents.evaluation import evaluate_batch
     from mivecc_agents.policies import CEILING_ACCEL_MPS2, constant_policy, pretrained_policies
+    from mivecc_agents.train_eval import KIND_SCHEMES
     from mivecc_env.config import from_overrides
 
     torch.set_num_threads(1)
@@ -84,10 +85,7 @@ def _run(job: tuple[str, str, dict[str, Any]]) -> tuple[str, list[dict[str, Any]
         if real.any():
             shortfall[0] = max(shortfall[0], float(np.max(CEILING_ACCEL_MPS2 - acts[real])))
 
-    if variant == "baseline":
-        scheme = "E" if kind == "edge" else "EE"
-    else:
-        scheme = "EE" if kind == "edge" else "EEC"
+    scheme = KIND_SCHEMES[kind][1 if variant == "baseline" else 0]
     extra = {"cloud_period": a["cloud_period"]} if scheme == "EEC" else {}
     results = evaluate_batch(scheme, a["rows"], a["cols"], a["densities"], a["steps"],
                              a["seeds"], policies=policies, progress=False, warn=False,

@@ -49,7 +49,7 @@ from paper_table import DENSITIES, config_overrides
 
 from mivecc_agents.networks import ACTION_SCALE_MPS2
 from mivecc_agents.policies import Policy, pretrained_policies
-from mivecc_agents.train_eval import ceiling_share_pct, gain_pct, headline_metric
+from mivecc_agents.train_eval import KIND_SCHEMES, ceiling_share_pct, gain_pct, headline_metric
 from mivecc_env import cli_args
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.config import from_overrides
@@ -134,10 +134,7 @@ def run_batch(setting: Setting, thetas: np.ndarray | None,
     n_pol = 1 if thetas is None else len(thetas)
     pairs = [(d, s) for d in setting.densities for s in setting.seeds]
     b = n_pol * len(pairs)
-    if thetas is None:
-        scheme = "E" if setting.kind == "edge" else "EE"
-    else:
-        scheme = "EE" if setting.kind == "edge" else "EEC"
+    scheme = KIND_SCHEMES[setting.kind][1 if thetas is None else 0]
     env = BatchedMiVeCCEnv(
         batch_size=b, densities=[d for _ in range(n_pol) for d, _ in pairs],
         rows=setting.rows, cols=setting.cols, max_steps=setting.steps, scheme=scheme,

@@ -55,10 +55,11 @@ def main(argv: Sequence[str] | None = None) -> Path:
 
     from mivecc_agents.evaluation import evaluate_batch, stacking_is_exact
     from mivecc_agents.policies import pretrained_policies
+    from mivecc_env.config import from_overrides
 
     torch.set_num_threads(args.threads)
-    shield = bool(overrides.get("safety_shield", False))
-    edge = pretrained_policies(args.model, safety_shield=shield)["edge"]
+    config = from_overrides(model=args.model, **overrides)
+    edge = pretrained_policies(args.model, safety_shield=config.safety_shield)["edge"]
     differences: list[dict[str, Any]] = []
     counted = [0]  # environment-steps checked
     step_no = [-1]  # the step being checked, from 0
@@ -89,7 +90,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
                    + " ".join(argv if argv is not None else sys.argv[1:]),
         "threads": args.threads, "environments": b, "steps": args.steps,
         "environment_steps": counted[0],
-        "random_graph_check_says_exact": stacking_is_exact(edge, b, rows * cols, 15),
+        "random_graph_check_says_exact": stacking_is_exact(edge, b, rows * cols, config.k_edge),
         "environment_steps_that_differ": len(steps_with),
         "first": [{"step": s, "env": e} for s, e in steps_with[:5]],
         "nodes": sorted({d["node"] for d in differences}),

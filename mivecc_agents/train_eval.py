@@ -37,6 +37,10 @@ import torch
 from mivecc_agents.evaluation import Policy, evaluate_batch
 from mivecc_agents.policies import actor_policy, ceiling_policy
 
+#: The scheme each coordinator kind is judged in, and the baseline it is judged against:
+#: the edge in MiVeCC-EE against MiVeCC-E, the cloud in MiVeCC-EEC against MiVeCC-EE.
+KIND_SCHEMES: dict[str, tuple[str, str]] = {"edge": ("EE", "E"), "cloud": ("EEC", "EE")}
+
 #: Columns of ``eval_log.csv``.
 EVAL_FIELDS = ("frames", "updates", "density", "velocity_mps", "baseline_mps", "gain_pct",
                "collisions", "baseline_collisions", "metric", "seeds", "steps", "ceiling_mps",
@@ -90,8 +94,8 @@ class PeriodicEvaluation:
         append: bool = False,
     ) -> None:
         self.stage = stage
-        self.scheme, base_scheme = ("EE", "E") if stage == "edge" else ("EEC", "EE")
         self.kind = "edge" if stage == "edge" else "cloud"
+        self.scheme, base_scheme = KIND_SCHEMES[self.kind]
         self.grid = f"{rows}x{cols}"
         self._args = dict(rows=rows, cols=cols, densities=list(densities), steps=int(steps),
                           seeds=list(seeds))
