@@ -52,6 +52,7 @@ def run_variant(
     results = evaluate_batch("EEC", rows, cols, densities, steps, seeds,
                              policies={"edge": edge, "cloud": cloud}, progress=False,
                              warn=False, on_step=record, model=model,
+                             stack_policies=True,  # as when its documented outputs were made
                              **({} if cloud_period is None else {"cloud_period": cloud_period}))
     n = max(steps - skip, 1)
     return {

@@ -98,6 +98,7 @@ def collect_states(
 
     results = evaluate_batch(SCHEME[kind], rows, cols, densities, steps, seeds,
                              policies=policies, progress=False, warn=False, on_step=record,
+                             stack_policies=True,  # as when its documented outputs were made
                              model=model, **overrides)
     period = int(results[0]["cloud_period"]) if kind == "cloud" else None
     return np.concatenate(obs), np.concatenate(masks), period

@@ -57,6 +57,7 @@ def run_variant(
 
     results = evaluate_batch("EE", rows, cols, densities, steps, seeds, policies={"edge": edge},
                              progress=False, warn=False, on_step=record, model=model,
+                             stack_policies=True,  # as when its documented outputs were made
                              **overrides)
     return {
         "edge_reward": sums["edge_reward"] / max(steps - skip, 1),

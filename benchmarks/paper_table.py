@@ -3,9 +3,11 @@
 For every grid, density, scheme and seed this runs one evaluation episode with the shipped
 pretrained coordinators (or the checkpoints given with ``--edge`` / ``--cloud``); all densities
 and seeds of a (grid, scheme) run as one batch of environments
-(:func:`mivecc_agents.evaluation.evaluate_batch`; with ``--per-env-calls`` each run equals
-its single run bit for bit, otherwise a learned policy called on the stacked batch can round
-an action differently in rare steps, and that run then differs from its single run), then
+(:func:`mivecc_agents.evaluation.evaluate_batch`; a learned policy is called once on the
+stacked batch where a check finds that exact (``stack_policies=True``), as the committed tables
+were made; on real graphs that can still round an action differently in rare steps, and that
+run then differs from its single run; with ``--per-env-calls`` every run equals its single run
+bit for bit, about 1.4x the time for the README's tables), then
 writes
 
 * ``paper_table.csv`` - one row per run,
@@ -90,7 +92,8 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both
     extra = {"cloud_period": cloud_period} if cloud_period and run_scheme == "EEC" else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
-                         progress=False, warn=False, stack_policies=not per_env_calls,
+                         progress=False, warn=False,
+                         stack_policies=not per_env_calls,
                          model=model, **overrides, **extra)
     for row in out:
         row.update(overrides)

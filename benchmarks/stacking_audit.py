@@ -2,10 +2,12 @@
 
 ``mivecc_agents.evaluation.stacking_is_exact`` decides before an evaluation, on random graphs,
 whether a policy may be called once on all environments' graphs stacked. This script checks
-the decision on the graphs a real run meets: it runs one batch (every density x seed, the
+the decision on the graphs a real run meets: it runs one batch (every density x seed, every
 policy called once per environment, so the trajectories are the single runs') and at every
-step calls the policy once more on the stacked graphs, counting the environment-steps whose
-actions differ in any bit (and the node, column and size of each difference).
+step calls the audited policy once more on the stacked graphs of the environments it acts in,
+counting the environment-steps whose actions differ in any bit (and the node, column and size
+of each difference). ``--kind edge`` audits the shipped edge in MiVeCC-EE; ``--kind cloud``
+the shipped cloud in MiVeCC-EEC (with the shipped edge, on the cloud's decision steps).
 
 Usage (the shipped released shield edge, 3x3; ``docs/training.md``, "The check is a sample,
 not a proof"; about 1 min 20 s with two threads here):
@@ -30,11 +32,15 @@ from mivecc_env import cli_args
 OWN_FIELDS = {"rows": "--grid", "cols": "--grid", "density_vplh": "--densities",
               "scheme": "--kind", "max_steps": "--steps", "model": "--model"}
 
+#: The scheme each audited kind runs in.
+SCHEME = {"edge": "EE", "cloud": "EEC"}
+
 
 def main(argv: Sequence[str] | None = None) -> Path:
     parser = cli_args.Parser(description=__doc__.splitlines()[0])
-    parser.add_argument("--kind", choices=("edge",), default="edge",
-                        help="the coordinator audited (MiVeCC-EE with the shipped edge)")
+    parser.add_argument("--kind", choices=tuple(SCHEME), default="edge",
+                        help="the coordinator audited: edge (in MiVeCC-EE) or cloud (in "
+                             "MiVeCC-EEC, with the shipped edge)")
     parser.add_argument("--model", choices=("paper", "released"), default="paper")
     parser.add_argument("--grid", type=cli_args.grid, default=(3, 3))
     parser.add_argument("--densities", type=cli_args.density, nargs="+", default=[300, 2100])
@@ -54,43 +60,60 @@ def main(argv: Sequence[str] | None = None) -> Path:
     import torch
 
     from mivecc_agents.evaluation import evaluate_batch, stacking_is_exact
-    from mivecc_agents.policies import pretrained_policies
+    from mivecc_agents.policies import PRETRAINED_DIR, pretrained_policies
     from mivecc_env.config import from_overrides
 
     torch.set_num_threads(args.threads)
     config = from_overrides(model=args.model, **overrides)
-    edge = pretrained_policies(args.model, safety_shield=config.safety_shield)["edge"]
+    policies = pretrained_policies(args.model, safety_shield=config.safety_shield)
+    if args.kind == "edge":
+        policies.pop("cloud", None)
+    audited = policies[args.kind]
     differences: list[dict[str, Any]] = []
     counted = [0]  # environment-steps checked
     step_no = [-1]  # the step being checked, from 0
 
-    def on_step(before: Any, _edge: Any, _cloud: Any, _after: Any) -> None:
-        obs, mask = before.edge_obs, before.edge_mask
-        b, n, k = mask.shape
+    def on_step(before: Any, edge_actions: Any, cloud_actions: Any, _after: Any) -> None:
         step_no[0] += 1
-        stacked = np.asarray(edge(obs.reshape(-1, k, k, 3), mask.reshape(-1, k))).reshape(b, n, k)
-        for env in range(b):
-            own = np.asarray(edge(obs[env], mask[env]))
+        if args.kind == "edge":
+            obs, mask = before.edge_obs, before.edge_mask
+            envs = np.arange(mask.shape[0])
+        else:  # the cloud's graphs; only the environments whose cloud decides on this step
+            b = cloud_actions.shape[0]
+            obs = before.cloud_obs.reshape(b, -1, *before.cloud_obs.shape[-3:])
+            mask = before.cloud_mask.reshape(b, -1, before.cloud_mask.shape[-1])
+            envs = np.flatnonzero(~np.isnan(cloud_actions.reshape(b, -1)).all(axis=1))
+        if envs.size == 0:
+            return
+        n, k = mask.shape[1:]
+        stacked = np.asarray(audited(obs[envs].reshape(-1, k, k, 3),
+                                     mask[envs].reshape(-1, k))).reshape(envs.size, n, k)
+        for row, env in enumerate(envs):
+            own = np.asarray(audited(obs[env], mask[env]))
             counted[0] += 1
-            for node, col in np.argwhere(own != stacked[env]):
-                differences.append({"step": step_no[0], "env": env,
+            for node, col in np.argwhere(own != stacked[row]):
+                differences.append({"step": step_no[0], "env": int(env),
                                     "node": int(node), "column": int(col),
                                     "real_column": bool(mask[env, node, col] > 0),
                                     "abs_diff_mps2": float(abs(own[node, col]
-                                                               - stacked[env, node, col]))})
+                                                               - stacked[row, node, col]))})
 
     rows, cols = args.grid
-    evaluate_batch("EE", rows, cols, list(args.densities), args.steps, list(args.seeds),
-                   policies={"edge": edge}, progress=True, warn=False, stack_policies=False,
-                   on_step=on_step, model=args.model, **overrides)
+    evaluate_batch(SCHEME[args.kind], rows, cols, list(args.densities), args.steps,
+                   list(args.seeds), policies=policies, progress=True, warn=False,
+                   stack_policies=False, on_step=on_step, model=args.model, **overrides)
     b = len(args.densities) * len(args.seeds)
+    n_graphs = rows * cols if args.kind == "edge" else config.n_cloud_graphs
     steps_with = sorted({(d["step"], d["env"]) for d in differences})
     report = {
         "command": "python benchmarks/stacking_audit.py "
                    + " ".join(argv if argv is not None else sys.argv[1:]),
+        "kind": args.kind,
+        "policy": Path(audited.checkpoint).relative_to(PRETRAINED_DIR.parents[1]).as_posix(),
         "threads": args.threads, "environments": b, "steps": args.steps,
         "environment_steps": counted[0],
-        "random_graph_check_says_exact": stacking_is_exact(edge, b, rows * cols, config.k_edge),
+        "random_graph_check_says_exact": stacking_is_exact(
+            audited, b, n_graphs, getattr(config, f"k_{args.kind}")),
         "environment_steps_that_differ": len(steps_with),
         "first": [{"step": s, "env": e} for s, e in steps_with[:5]],
         "nodes": sorted({d["node"] for d in differences}),

@@ -169,6 +169,10 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
                    help="torch threads for the policies' inference (default "
                    f"{DEFAULT_EVAL_THREADS}: fastest for these small networks)")
+    p.add_argument("--stack-policies", action="store_true",
+                   help="with several seeds: call each policy once on all seeds' graphs stacked "
+                   "where a check finds that exact (faster; a run can then differ from its "
+                   "single run in rare steps); default: one call per seed")
     p.set_defaults(func=cmd_evaluate)
     return p
 
@@ -367,7 +371,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     else:  # all seeds as one batch of environments (same results as one run per seed)
         results = evaluate_batch(args.scheme, args.rows, args.cols, args.density, args.steps,
                                  seeds, policies=policies, progress=not args.no_progress,
-                                 **overrides)
+                                 stack_policies=args.stack_policies, **overrides)
     for result in results:
         for kind, policy in policies.items():
             result[f"{kind}_checkpoint"] = getattr(policy, "checkpoint", "")

@@ -12,22 +12,23 @@ from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
 ``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
 ``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
 (clipped to the box), a pure function of its inputs (``n_agents`` may be any number of rows:
-:func:`evaluate_batch` stacks environments where a check finds that exact). A coordinator the
+:func:`evaluate_batch` with ``stack_policies=True`` stacks environments where a check finds that
+exact). A coordinator the
 scheme uses but for which no policy is given acts with zeros; the result then says
 ``"coordinator_actions": "zero"`` and a warning is printed.
 
 :func:`evaluate_batch` runs several seeds and densities of one configuration as one batch
 (:class:`mivecc_env.batched.BatchedMiVeCCEnv`): the result of each (density, seed) is what
-:func:`evaluate_scheme` gives for it (bit for bit with ``stack_policies=False``, below), in a
-fraction of the time. A policy is called once on all environments' graphs stacked where a
-check on random graphs finds that it gives the bits of one call per environment
-(:func:`stacking_is_exact`, checked before the run), else once per environment with the B = 1
-shapes (a network's float rounding can depend on the batch size).
-That check is a sample: on real graphs a stacked network can still round one action one unit
-in the last place differently in rare steps, and the run then diverges from the environment's
-run alone. With ``stack_policies=False`` every call has the B = 1 shapes, so each
-environment's trajectory is the same whatever the batch it runs in (slower: one call per
-environment and step).
+:func:`evaluate_scheme` gives for it (bit for bit, unless ``stack_policies=True``, below), in
+a fraction of the time. By default every policy is called once per environment and step, with
+the B = 1 shapes, so each environment's trajectory is the same whatever the batch it runs in.
+``stack_policies=True`` is faster: a policy is then called once on all environments' graphs
+stacked where a check on random graphs finds that this gives the bits of one call per
+environment (:func:`stacking_is_exact`, checked before the run). That check is a sample, not a
+proof (a network's float rounding can depend on the batch size): on real graphs a stacked call
+rounded one action one unit in the last place differently in rare steps, with two torch threads
+(the shipped released shield edge on 3x3) and with one (the same edge on 1x1), and the run then
+left the environment's run alone (``benchmarks/stacking_audit.py``).
 
 Example:
     >>> r = evaluate_scheme("E", 1, 1, 900, steps=50, seed=0, progress=False)
@@ -294,7 +295,7 @@ def evaluate_batch(
     progress: bool = True,
     warn: bool = True,
     on_step: Callable[[Any, np.ndarray | None, np.ndarray | None, Any], None] | None = None,
-    stack_policies: bool = True,
+    stack_policies: bool = False,
     **config_overrides: Any,
 ) -> list[dict[str, Any]]:
     """Run every (density, seed) pair of one configuration as one batch of environments.
@@ -310,10 +311,10 @@ def evaluate_batch(
             has none; NaN cloud rows for the environments whose cloud does not decide on
             this step, ``cloud_period`` > 1: their policy is not called) and the step's
             result (rewards, next observations).
-        stack_policies: call a policy once on all environments where
-            :func:`stacking_is_exact` says that is exact (fast; rare one-ulp differences on real
-            graphs remain possible); ``False``: once per environment, so no environment's
-            trajectory depends on the batch (module docstring).
+        stack_policies: ``False`` (default): one call per environment, so no environment's
+            trajectory depends on the batch; ``True``: one call on all environments where
+            :func:`stacking_is_exact` says that is exact (faster; rare one-ulp differences on
+            real graphs remain possible; module docstring).
 
     Returns:
         One result per (density, seed), densities outer and seeds inner, each with the keys of
@@ -464,15 +465,16 @@ def stacking_is_exact(policy: Policy | None, n_envs: int, n_agents: int, k: int)
     """Whether one call of ``policy`` on the graphs of ``n_envs`` environments stacked gives,
     bit for bit, what one call per environment gives.
 
-    A network's float rounding can depend on the batch size it is called with (here the
-    shipped actors' dense layers round differently at one row per environment: the clouds,
-    and the edges on 1x1 grids). It is checked once per shape, on random graphs and masks (a
+    A network's float rounding can depend on the batch size it is called with (which shipped
+    actors stack depends on the CPU and the thread count; ``docs/training.md``, "Evaluation").
+    It is checked once per shape, on random graphs and masks (a
     generator seeded here). That is a sample, not a proof: whether two summation orders round
-    alike depends on the values, and with two torch threads the shipped released shield edge,
-    which passes this check, rounded one action differently in 14 of 9000 environment-steps of
-    real graphs (3x3, 6 environments; ``benchmarks/stacking_audit.py``, session 33).
-    ``evaluate_batch(..., stack_policies=False)`` never stacks. A policy that fails on the
-    stacked shapes is not stacked.
+    alike depends on the values: the shipped released shield edge, which passes this check,
+    rounded one action of real graphs differently in 14 of 9000 environment-steps with two
+    torch threads (3x3, 6 environments; session 33) and in 183 of 63 000 with one (1x1, 21
+    environments; session 34; ``benchmarks/stacking_audit.py``). ``evaluate_batch`` stacks
+    only with ``stack_policies=True``. A policy that fails on the stacked shapes is not
+    stacked.
 
     Args:
         n_envs / n_agents / k: the batch, the agents per environment, the graph size K.

@@ -78,6 +78,11 @@ class PeriodicEvaluation:
         out_dir: folder of ``eval_log.csv`` and ``eval_curve.png``.
         edge_policy: stage II: the frozen edge's numpy policy (used in both runs).
         append: continue an existing log (a resumed run).
+
+    Its batch (the densities x seeds) is fixed by the preset, so its policy calls are stacked
+    wherever :func:`~mivecc_agents.evaluation.stacking_is_exact` allows, at any thread count
+    (``stack_policies=True``), as when the shipped policies were picked: the documented
+    training runs' evaluation logs stay what they were.
     """
 
     def __init__(
@@ -98,18 +103,17 @@ class PeriodicEvaluation:
         self.scheme, base_scheme = KIND_SCHEMES[self.kind]
         self.grid = f"{rows}x{cols}"
         self._args = dict(rows=rows, cols=cols, densities=list(densities), steps=int(steps),
-                          seeds=list(seeds))
+                          seeds=list(seeds), stack_policies=True, progress=False, warn=False)
         self._overrides = {k: v for k, v in config_overrides.items() if k != "max_steps"}
         self.metric = headline_metric(self._overrides.get("model", "paper"))
         self._edge = edge_policy
         base_policies = {"edge": edge_policy} if edge_policy is not None else {}
         self.baseline = self._per_density(
-            evaluate_batch(base_scheme, **self._args, policies=base_policies, progress=False,
-                           warn=False, **self._overrides)
+            evaluate_batch(base_scheme, **self._args, policies=base_policies, **self._overrides)
         )
         self.ceiling = self._per_density(
             evaluate_batch(self.scheme, **self._args, policies=self._ceiling_policies(),
-                           progress=False, warn=False, **self._overrides)
+                           **self._overrides)
         )
         self.csv_path = Path(out_dir) / "eval_log.csv"
         self.png_path = Path(out_dir) / "eval_curve.png"
@@ -149,8 +153,7 @@ class PeriodicEvaluation:
         if self._edge is not None:
             policies["edge"] = self._edge
         now = self._per_density(
-            evaluate_batch(self.scheme, **self._args, policies=policies, progress=False,
-                           warn=False, **self._overrides)
+            evaluate_batch(self.scheme, **self._args, policies=policies, **self._overrides)
         )
         gains, shares = [], []
         with self.csv_path.open("a", newline="") as fh:

@@ -556,3 +556,13 @@ def test_stacking_audit_counts_every_environment_step(tmp_path: Path) -> None:
     assert len(report["first"]) == min(5, report["environment_steps_that_differ"])
     assert all(0 <= f["step"] < 60 and 0 <= f["env"] < 2 for f in report["first"])
     assert isinstance(report["random_graph_check_says_exact"], bool)
+
+
+def test_stacking_audit_of_the_cloud_counts_its_decision_steps(tmp_path: Path) -> None:
+    out = stacking_audit.main(["--kind", "cloud", "--model", "released", "--densities", "300",
+                               "2100", "--seeds", "0", "--steps", "25", "--out", str(tmp_path)])
+    report = json.loads(out.read_text())
+    # the shipped released cloud decides every 10 steps: steps 0, 10 and 20, in 2 environments
+    assert (report["kind"], report["environment_steps"]) == ("cloud", 6)
+    assert report["policy"] == "mivecc_agents/pretrained/released/cloud.pt"
+    assert isinstance(report["random_graph_check_says_exact"], bool)

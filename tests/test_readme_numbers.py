@@ -1099,3 +1099,49 @@ def test_session33_ceiling_resolution_and_stacking_audit():
                         for d in (900, 1500, 2100))
     assert f"The shipped cloud scores {shipped_score:.1f} on the same seeds" in training
     assert shipped_score > max(scores.values())
+
+
+def test_session34_stacking_audits_of_every_shipped_policy():
+    """Session 34: the one-thread stacking audits of every shipped policy (the table's rows and
+    the 1x1 exception), from the committed files."""
+    import json
+
+    raw = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    training = " ".join(raw.split())
+    audits = {path.stem: json.loads(path.read_text(encoding="utf-8")) for path in
+              sorted((ROOT / "docs" / "results" / "training" / "session34").glob("*.json"))}
+    assert len(audits) == 11
+    for name, audit in audits.items():
+        assert audit["threads"] == 1 and audit["environments"] == 21, name
+        assert audit["steps"] == 3000 and audit["random_graph_check_says_exact"], name
+        assert ("--grid 1x1" in audit["command"]) == name.endswith("_1x1"), name
+        # an edge acts on every step, a cloud every 10 steps (its training period)
+        assert audit["environment_steps"] == 21 * (3000 if audit["kind"] == "edge" else 300)
+    rows = {
+        "edge, released model": ["edge_released"],
+        "edge, default model": ["edge_paper"],
+        "shield edge, released model": ["edge_released_shield"],
+        "shield edge, default model": ["edge_paper_shield"],
+        "cloud, released model (one graph; with the shield; per-lane graphs)":
+            ["cloud_released", "cloud_released_shield", "cloud_released_per_lane"],
+        "cloud, default model (one graph; with the shield; per-lane graphs)":
+            ["cloud_paper", "cloud_paper_shield", "cloud_paper_per_lane"],
+        "**shield edge, released model, 1x1**": ["edge_released_shield_1x1"],
+    }
+    assert sorted(n for names in rows.values() for n in names) == sorted(audits)
+    for label, names in rows.items():
+        compared = {audits[n]["environment_steps"] for n in names}
+        differ = {audits[n]["environment_steps_that_differ"] for n in names}
+        assert len(compared) == len(differ) == 1, label
+        steps = f"{compared.pop():,}".replace(",", " ")
+        steps = f"{steps} each" if len(names) > 1 else steps
+        n_differ = differ.pop()
+        shown = f"**{n_differ}**" if n_differ else "0"
+        assert f"| {label} | {steps} | {shown} |" in raw, label
+    one = audits["edge_released_shield_1x1"]
+    assert one["policy"] == "mivecc_agents/pretrained/released/shield/edge.pt"
+    assert one["first"][0] == {"step": 85, "env": 14} and one["all_in_real_columns"]
+    assert one["largest_difference_mps2"] == pytest.approx(2.4e-7, rel=0.01)
+    assert (f"{one['environment_steps_that_differ']} of its 63 000 environment-steps "
+            f"({100 * one['environment_steps_that_differ'] / 63_000:.1f} %)") in training
+    assert "the first at step 85 (environment 14)" in training

@@ -61,6 +61,23 @@ def test_cli_several_seeds_is_one_batch(capsys: pytest.CaptureFixture[str]) -> N
     assert _same(doc["runs"][1], single) == []
 
 
+@pytest.mark.parametrize("flag", [[], ["--stack-policies"]])
+def test_cli_stacks_policy_calls_only_when_asked(flag: list[str], monkeypatch) -> None:
+    from mivecc_agents import cli
+
+    seen: list[bool] = []
+    real = cli.evaluate_batch
+
+    def recorded(*args, **kwargs):
+        seen.append(kwargs["stack_policies"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cli, "evaluate_batch", recorded)
+    code = cli.main(["evaluate", "--scheme", "EE", "--rows", "3", "--cols", "3", "--steps", "20",
+                     "--seeds", "0", "1", "--json", "--no-progress", *flag])
+    assert code == 0 and seen == [bool(flag)]
+
+
 def test_rules_study_batch_equals_single_runs() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
     import rules_study
@@ -153,7 +170,7 @@ def test_evaluation_functions_adopt_a_learned_clouds_period() -> None:
 def test_a_learned_cloud_is_asked_only_on_its_decision_steps() -> None:
     # Between decisions the env ignores the cloud action (tests/env/test_cloud_period.py), so
     # both evaluation paths call the cloud policy on the decision steps only: 0, 10, 20, 30, 40.
-    # (evaluate_batch's check of a stacked call, before step 0, counts as step 0.)
+    # (with stack_policies=True evaluate_batch's check, before step 0, would count as step 0.)
     shipped = pretrained_policies("released")
     calls: list[int] = []  # the step of each call
     decided: list[int] = []  # environments whose cloud row is an action (not NaN), per step
@@ -180,9 +197,9 @@ def test_a_learned_cloud_is_asked_only_on_its_decision_steps() -> None:
 
 
 def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
-    # Where stacking gives the per-environment bits (checked first), the policy is called
-    # once per step for the whole batch; a policy whose output depends on its batch size is
-    # called per environment, and the results still equal one run per seed.
+    # With stack_policies=True, where stacking gives the per-environment bits (checked first),
+    # the policy is called once per step for the whole batch; a policy whose output depends on
+    # its batch size is called per environment, and the results still equal one run per seed.
     from mivecc_agents.evaluation import stacking_is_exact
 
     edge = pretrained_policies("released")["edge"]
@@ -194,7 +211,7 @@ def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
 
     stacked = stacking_is_exact(edge, 2, 9, 15)  # 3x3: 9 edge nodes per environment
     batch = evaluate_batch("EE", 3, 3, [900.0, 2100.0], 150, [0], policies={"edge": counted},
-                           progress=False)
+                           progress=False, stack_policies=True)
     assert sizes[:3] == [18, 9, 9]  # the check: stacked, then one call per environment
     assert sizes[3:] == ([18] * 150 if stacked else [9] * 300)
     for r in batch:
@@ -221,23 +238,27 @@ def test_a_policy_is_called_once_per_step_when_stacking_is_exact() -> None:
         assert _same(r, single) == []
 
 
-def test_per_environment_calls_make_every_action_independent_of_the_batch() -> None:
+@pytest.mark.parametrize("stack_policies", [False, "default"])
+def test_per_environment_calls_make_every_action_independent_of_the_batch(
+    stack_policies: bool | str,
+) -> None:
     # The stacking check samples random graphs; on real graphs, with two torch threads, the
     # shipped released shield edge (which passes it) rounded one action one ulp differently at
-    # step 77 of (2100 veh/lane/h, seed 2) in this batch on the machine of session 33. With
-    # stack_policies=False every call has one environment's shapes: each environment's actions
-    # at every step are its single run's, bit for bit, at any thread count.
+    # step 77 of (2100 veh/lane/h, seed 2) in this batch on the machine of session 33. By
+    # default (and with stack_policies=False) every call has one environment's shapes: each
+    # environment's actions at every step are its single run's, bit for bit.
     import torch
 
     threads = torch.get_num_threads()
     torch.set_num_threads(2)  # the conftest's one thread hides the stacked rounding here
     try:
-        _assert_per_environment_calls_match_single_run()
+        _assert_per_environment_calls_match_single_run(
+            {} if stack_policies == "default" else {"stack_policies": stack_policies})
     finally:
         torch.set_num_threads(threads)
 
 
-def _assert_per_environment_calls_match_single_run() -> None:
+def _assert_per_environment_calls_match_single_run(stacking: dict[str, bool]) -> None:
     edge = pretrained_policies("released", safety_shield=True)["edge"]
     sizes: list[int] = []
 
@@ -254,8 +275,8 @@ def _assert_per_environment_calls_match_single_run() -> None:
     alone: list[np.ndarray] = []
     common = dict(progress=False, model="released", safety_shield=True)
     batch = evaluate_batch("EE", 3, 3, [300.0, 2100.0], 100, [0, 1, 2],
-                           policies={"edge": counted}, stack_policies=False,
-                           on_step=recorded(in_batch, 5), **common)
+                           policies={"edge": counted}, on_step=recorded(in_batch, 5),
+                           **stacking, **common)
     assert set(sizes) == {9}  # one call per environment and step, no stacking check
     single = evaluate_batch("EE", 3, 3, [2100.0], 100, [2], policies={"edge": edge},
                             on_step=recorded(alone, None), **common)

@@ -142,3 +142,23 @@ def test_evaluating_does_not_change_what_is_learned(tmp_path):
     a, b = (load_checkpoint(p)["actor"] for p in (plain, evaluated))
     assert a.keys() == b.keys()
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_the_periodic_evaluation_stacks_policy_calls_at_any_thread_count(tmp_path, monkeypatch):
+    """Its batch is fixed by the preset: it stacks as when the shipped policies were picked
+    (``stack_policies=True``), not by ``evaluate_batch``'s one-thread default."""
+    from mivecc_agents import train_eval
+    from mivecc_agents.networks import make_actor
+
+    seen: list[object] = []
+    real = train_eval.evaluate_batch
+
+    def recorded(*args, **kwargs):
+        seen.append(kwargs.get("stack_policies"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(train_eval, "evaluate_batch", recorded)
+    evaluation = train_eval.PeriodicEvaluation("edge", 1, 1, [900], [EVAL_SEED0], 20, {},
+                                               tmp_path)
+    evaluation(make_actor("edge", "edge").module, 10, 1)
+    assert seen == [True, True, True]  # baseline, ceiling, the actor
