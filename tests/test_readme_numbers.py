@@ -1145,3 +1145,67 @@ def test_session34_stacking_audits_of_every_shipped_policy():
     assert (f"{one['environment_steps_that_differ']} of its 63 000 environment-steps "
             f"({100 * one['environment_steps_that_differ'] / 63_000:.1f} %)") in training
     assert "the first at step 85 (environment 14)" in training
+
+
+def _farm_medians(path) -> dict[str, float]:
+    """The median wall seconds of A, B and A/B in a farm-bench report."""
+    return {line.split()[0]: float(line.split()[4]) for line in path.read_text(
+        encoding="utf-8").splitlines() if line.startswith(("A wall", "B wall", "A/B wall"))}
+
+
+def test_session34_per_environment_call_timings():
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    readme = " ".join(README.split())
+    timing = ROOT / "docs" / "results" / "training" / "session34" / "per_env_calls_timing"
+    table = _farm_medians(timing / "farm_bench.txt")
+    assert (f"median wall of {table['A']:.1f} s against {table['B']:.1f} s (ratio "
+            f"{table['A/B']:.2f})") in training
+    assert "| E | 42 / 42 |" in (timing / "table_diff.md").read_text(encoding="utf-8")
+    ee, eec = (_farm_medians(timing / f"farm_bench_evaluate_{s}.txt") for s in ("ee", "eec"))
+    assert (f"took a median wall of {ee['A']:.1f} s by default against {ee['B']:.1f} s with "
+            f"`--stack-policies`") in training
+    assert f"`--scheme EEC` {eec['A']:.1f} s against {eec['B']:.1f} s" in training
+    assert f"--seeds 0 1 2 # {ee['A']:.0f} s" in readme
+    assert f"--cloud-checkpoint runs/cloud/cloud.pt # {eec['A']:.0f} s" in readme
+    assert f"--stack-policies: {ee['B']:.0f} s and {eec['B']:.0f} s" in readme
+
+
+def test_session34_rules_only_runs_on_a_cpu_without_avx512():
+    """The README tables rerun on an AVX2 CPU against the committed (AVX-512) ones."""
+    import csv
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    here = ROOT / "docs" / "results" / "reproducibility" / "session34_avx2"
+
+    def runs(path):
+        with path.open(newline="") as fh:
+            return {(r["rows"], r["scheme"], r["density"], r["seed"]): r
+                    for r in csv.DictReader(fh)}
+
+    differ: dict[tuple[str, str], int] = {}
+    largest_rules_only = 0.0
+    for model, published in (("released", "paper_table_released"), ("default", "paper_table")):
+        a = runs(ROOT / "docs" / "results" / published / "paper_table.csv")
+        b = runs(here / model / "paper_table.csv")
+        assert a.keys() == b.keys() and len(a) == 252
+        assert '"avx512f"' not in (here / model / "machine.json").read_text()
+        for key in a:
+            fields = ("avg_travel_velocity_mps", "released_velocity_mps")
+            if any(a[key][f] != b[key][f] for f in (*fields, "collisions")):
+                differ[model, key[1]] = differ.get((model, key[1]), 0) + 1
+            if key[1] in ("E", "signalized", "EE+3", "EEC+3"):
+                assert a[key]["collisions"] == b[key]["collisions"]
+                largest_rules_only = max(largest_rules_only, *(
+                    abs(float(a[key][f]) - float(b[key][f])) for f in fields))
+    assert differ == {("released", "E"): 12, ("released", "signalized"): 3,
+                      ("released", "EE+3"): 1, ("released", "EEC+3"): 1,
+                      ("released", "EE"): 2, ("released", "EEC"): 2,
+                      ("default", "signalized"): 3, ("default", "EE"): 3,
+                      ("default", "EEC"): 1}
+    assert f"at most {largest_rules_only:.1e} m/s in either velocity metric" in training
+    assert (f"at most {largest_rules_only:.1e} m/s, and no printed figure moves"
+            in " ".join(README.split()))
+    assert ("Released model: E 12, signalized 3, `EE+3` 1 and `EEC+3` 1 of 42 runs each "
+            "differ; default model: signalized 3 of 42") in training
+    assert "released EE and EEC differ in 2 of 42 each" in training
+    assert "default EE in 3 of 42" in training and "and EEC in 1 of 42" in training
