@@ -92,8 +92,7 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     # the constant cloud of EEC+3 every step, unless --cloud-period names the period of both
     extra = {"cloud_period": cloud_period} if cloud_period and run_scheme == "EEC" else {}
     out = evaluate_batch(run_scheme, rows, cols, densities, steps, seeds, policies=policies,
-                         progress=False, warn=False,
-                         stack_policies=not per_env_calls,
+                         progress=False, warn=False, stack_policies=not per_env_calls,
                          model=model, **overrides, **extra)
     for row in out:
         row.update(overrides)

@@ -12,10 +12,9 @@ from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
 ``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
 ``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
 (clipped to the box), a pure function of its inputs (``n_agents`` may be any number of rows:
-:func:`evaluate_batch` with ``stack_policies=True`` stacks environments where a check finds that
-exact). A coordinator the
-scheme uses but for which no policy is given acts with zeros; the result then says
-``"coordinator_actions": "zero"`` and a warning is printed.
+:func:`evaluate_batch` with ``stack_policies=True`` stacks environments where a check finds
+that exact). A coordinator the scheme uses but for which no policy is given acts with zeros;
+the result then says ``"coordinator_actions": "zero"`` and a warning is printed.
 
 :func:`evaluate_batch` runs several seeds and densities of one configuration as one batch
 (:class:`mivecc_env.batched.BatchedMiVeCCEnv`): the result of each (density, seed) is what
