@@ -1145,6 +1145,16 @@ def test_session34_stacking_audits_of_every_shipped_policy():
     assert (f"{one['environment_steps_that_differ']} of its 63 000 environment-steps "
             f"({100 * one['environment_steps_that_differ'] / 63_000:.1f} %)") in training
     assert "the first at step 85 (environment 14)" in training
+    later = {path.stem: json.loads(path.read_text(encoding="utf-8")) for path in sorted(
+        (ROOT / "docs" / "results" / "training" / "session34" / "seeds3to7").glob("*.json"))}
+    assert sorted(later) == ["cloud_released_shield", "edge_released_shield"]
+    for name, audit in later.items():
+        assert "--seeds 3 4 5 6 7" in audit["command"] and audit["environments"] == 35, name
+        assert audit["threads"] == 1 and audit["environment_steps_that_differ"] == 0, name
+    assert (later["edge_released_shield"]["environment_steps"],
+            later["cloud_released_shield"]["environment_steps"]) == (105_000, 10_500)
+    assert ("the released shield edge in 0 of 105 000 environment-steps, the released cloud "
+            "over it (with the shield) in 0 of 10 500") in training
 
 
 def _farm_medians(path) -> dict[str, float]:
