@@ -1030,6 +1030,12 @@ def _picking_row(run: Path, label: str) -> str:
             + f" | {score:.1f} ({frames:_} frames) |".replace("_", " "))
 
 
+def _farm_medians(path) -> dict[str, float]:
+    """The median wall seconds of A, B and A/B in a farm-bench report."""
+    return {line.split()[0]: float(line.split()[4]) for line in path.read_text(
+        encoding="utf-8").splitlines() if line.startswith(("A wall", "B wall", "A/B wall"))}
+
+
 def test_session33_ceiling_resolution_and_stacking_audit():
     """Session 33: constant coordinators a hair below +3 against the +3 ceiling (the table's
     resolution), the stacking audits, and the clouds retrained with uniform draws, from the
@@ -1082,10 +1088,8 @@ def test_session33_ceiling_resolution_and_stacking_audit():
     assert "nor in 31 500 environment-steps" in training
     timing = s33 / "per_env_calls_timing"
     assert "| EE | 21 / 21 |" in (timing / "table_diff.md").read_text(encoding="utf-8")
-    walls = {line.split()[0]: line.split()[4] for line in (  # the median
-        timing / "farm_bench.txt").read_text(encoding="utf-8").splitlines()
-        if line.startswith(("A wall", "B wall", "A/B wall"))}
-    assert (f"median wall of {float(walls['A']):.1f} s against {float(walls['B']):.1f} s"
+    walls = _farm_medians(timing / "farm_bench.txt")
+    assert (f"median wall of {walls['A']:.1f} s against {walls['B']:.1f} s"
             in training)
     # the clouds retrained with uniform draws, against the shipped cloud on the picking seeds
     scores = {}
@@ -1155,12 +1159,6 @@ def test_session34_stacking_audits_of_every_shipped_policy():
             later["cloud_released_shield"]["environment_steps"]) == (105_000, 10_500)
     assert ("the released shield edge in 0 of 105 000 environment-steps, the released cloud "
             "over it (with the shield) in 0 of 10 500") in training
-
-
-def _farm_medians(path) -> dict[str, float]:
-    """The median wall seconds of A, B and A/B in a farm-bench report."""
-    return {line.split()[0]: float(line.split()[4]) for line in path.read_text(
-        encoding="utf-8").splitlines() if line.startswith(("A wall", "B wall", "A/B wall"))}
 
 
 def test_session34_per_environment_call_timings():
