@@ -1031,8 +1031,9 @@ def _picking_row(run: Path, label: str) -> str:
 
 
 def _farm_medians(path) -> dict[str, float]:
-    """The median wall seconds of A, B and A/B in a farm-bench report."""
-    return {line.split()[0]: float(line.split()[4]) for line in path.read_text(
+    """The median wall seconds of A, B and the median A/B ratio in a farm-bench report (each
+    line ends with min, median, max; the A/B line has no unit word)."""
+    return {line.split()[0]: float(line.split()[-2]) for line in path.read_text(
         encoding="utf-8").splitlines() if line.startswith(("A wall", "B wall", "A/B wall"))}
 
 
@@ -1217,3 +1218,31 @@ def test_session34_rules_only_runs_on_a_cpu_without_avx512():
             "differ; default model: signalized 3 of 42") in training
     assert "released EE and EEC differ in 2 of 42 each" in training
     assert "default EE in 3 of 42" in training and "and EEC in 1 of 42" in training
+
+
+def test_session35_default_table_per_environment_calls():
+    """The default model's README table with and without ``--per-env-calls`` (session 35): the
+    timing figures and the claim that every run, vehicles carried included, is the same."""
+    import csv
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    timing = ROOT / "docs" / "results" / "training" / "session35" / "per_env_calls_timing"
+    table = _farm_medians(timing / "farm_bench.txt")
+    assert (f"a median wall of {table['A']:.1f} s against {table['B']:.1f} s (ratio "
+            f"{table['A/B']:.2f})") in training
+    report = (timing / "farm_bench.txt").read_text(encoding="utf-8")
+    assert "--per-env-calls" in report.split("\nB = ")[0] and "(2 of 2)" in report
+
+    def runs(path):
+        with path.open(newline="") as fh:
+            return {(r["rows"], r["scheme"], r["density"], r["seed"]): r
+                    for r in csv.DictReader(fh)}
+
+    stacked = runs(ROOT / "docs" / "results" / "reproducibility" / "session34_avx2" / "default"
+                   / "paper_table.csv")
+    per_env = runs(timing / "paper_table_per_env.csv")
+    assert stacked.keys() == per_env.keys() and len(stacked) == 252
+    timing_columns = {"steps_per_s", "wall_s"}
+    for key, row in stacked.items():
+        assert {f for f in row if row[f] != per_env[key][f]} <= timing_columns, key
+    assert "Every one of the 252 runs with `--per-env-calls` equals" in training

@@ -13,7 +13,7 @@ import pytest
 
 from mivecc_env import cli_args
 from mivecc_env.config import ConfigError
-from tests.scripts import BENCHMARKS, load_benchmark
+from tests.scripts import BENCHMARKS, ParsedError, load_benchmark, stop_after_parsing
 
 
 def _script(name: str) -> ModuleType:
@@ -177,10 +177,6 @@ def test_every_script_with_options_uses_the_shared_entry(path: Path) -> None:
     assert "argparse.ArgumentParser(" not in text, path.name
 
 
-class _ParsedError(Exception):
-    """Raised by the patched parser once the options are parsed (nothing runs)."""
-
-
 @pytest.mark.parametrize(("name", "argv"), [
     ("train_speed", ["--e2e-frames", "0", "0"]),  # documented: 0 skips the end-to-end runs
     ("trace_collisions", ["--history", "0"]),
@@ -189,11 +185,6 @@ class _ParsedError(Exception):
 def test_documented_zero_values_still_parse(
     name: str, argv: list[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    original = cli_args.Parser.parse_args
-
-    def parse_then_stop(self: argparse.ArgumentParser, args=None, namespace=None):
-        raise _ParsedError(original(self, args, namespace))
-
-    monkeypatch.setattr(cli_args.Parser, "parse_args", parse_then_stop)
-    with pytest.raises(_ParsedError):
+    stop_after_parsing(monkeypatch)
+    with pytest.raises(ParsedError):
         _script(name).main(argv)
