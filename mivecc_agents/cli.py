@@ -23,6 +23,8 @@ velocity before any vehicle has exited) are ``null`` in the JSON.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import math
 import os
@@ -173,6 +175,10 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="with several seeds: call each policy once on all seeds' graphs stacked "
                    "where a check finds that exact (faster; a run can then differ from its "
                    "single run in rare steps); default: one call per seed")
+    p.add_argument("--workers", type=cli_args.count(1), default=1,
+                   help="with several seeds: processes that share the seeds (default 1; at most "
+                   "one per seed); each run is the same as with one process, except with "
+                   "--stack-policies, whose stacks then hold each process's seeds")
     p.set_defaults(func=cmd_evaluate)
     return p
 
@@ -368,10 +374,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         results = [evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                                    seeds[0], policies=policies, progress=not args.no_progress,
                                    **overrides)]
-    else:  # all seeds as one batch of environments (same results as one run per seed)
-        results = evaluate_batch(args.scheme, args.rows, args.cols, args.density, args.steps,
-                                 seeds, policies=policies, progress=not args.no_progress,
-                                 stack_policies=args.stack_policies, **overrides)
+    else:  # the seeds as batches of environments (same results as one run per seed)
+        results = _evaluate_seeds(args, overrides, seeds, policies)
     for result in results:
         for kind, policy in policies.items():
             result[f"{kind}_checkpoint"] = getattr(policy, "checkpoint", "")
@@ -389,6 +393,47 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     else:
         print(format_table(results, stats["mean"] if stats else None))
     return 0
+
+
+def _evaluate_seeds(args: argparse.Namespace, overrides: dict[str, Any], seeds: list[int],
+                    policies: dict[str, Any]) -> list[dict[str, Any]]:
+    """Results of several seeds, in their order: one batch of environments, or with
+    ``--workers N`` one batch per worker process, each a contiguous share of the seeds."""
+    workers = min(args.workers, len(seeds))
+    if workers == 1:
+        return _evaluate_share((args, overrides, seeds, 0), policies)
+    import multiprocessing as mp
+
+    from tqdm.auto import tqdm
+
+    size, extra = divmod(len(seeds), workers)
+    bounds = [i * size + min(i, extra) for i in range(workers + 1)]
+    jobs = [(args, overrides, seeds[bounds[i]:bounds[i + 1]], i) for i in range(workers)]
+    with mp.get_context("spawn").Pool(workers) as pool:
+        batches = list(tqdm(pool.imap(_evaluate_share, jobs), total=workers, unit="share",
+                            desc=f"{args.scheme} seeds in {workers} processes", file=sys.stderr,
+                            disable=args.no_progress, leave=False))
+    return [row for batch in batches for row in batch]
+
+
+def _evaluate_share(job: tuple[argparse.Namespace, dict[str, Any], list[int], int],
+                    policies: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """One share of the seeds as one batch of environments. In a worker process (``policies``
+    None) the policies of the evaluation's config are loaded again, without repeating the
+    parent's warnings and without a progress bar; only the first share warns about missing
+    policies."""
+    args, overrides, seeds, index = job
+    in_worker = policies is None
+    if policies is None:
+        policies = {}
+        if args.scheme in ("EE", "EEC") and _loads_policies(args):
+            set_inference_threads(args.threads)
+            with contextlib.redirect_stderr(io.StringIO()):  # the parent has warned
+                policies = evaluation_policies(args, _evaluation_config(args, overrides))
+    return evaluate_batch(args.scheme, args.rows, args.cols, args.density, args.steps, seeds,
+                          policies=policies, progress=not (in_worker or args.no_progress),
+                          warn=index == 0,
+                          stack_policies=args.stack_policies, **overrides)
 
 
 # ----------------------------------------------------------------------------------------------

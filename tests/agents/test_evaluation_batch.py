@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("torch")
 
 from mivecc_agents.evaluation import evaluate_batch, evaluate_scheme
-from mivecc_agents.policies import pretrained_policies
+from mivecc_agents.policies import pretrained_path, pretrained_policies
 
 #: Keys that depend on the wall clock or the batch, not on the trajectory.
 TIMING = {"steps_per_s", "wall_s", "batch_size"}
@@ -59,6 +59,40 @@ def test_cli_several_seeds_is_one_batch(capsys: pytest.CaptureFixture[str]) -> N
     assert [r["batch_size"] for r in doc["runs"]] == [2, 2]
     single = evaluate_scheme("E", 1, 1, 1500.0, 350, 1, progress=False)
     assert _same(doc["runs"][1], single) == []
+
+
+def test_cli_workers_share_the_seeds_and_give_the_same_runs(
+    capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--workers 2`` runs the seeds in two processes (shares of 2 and 1 seeds), with the
+    shipped policy of the config's model and shield setting loaded there (the released
+    model's shield edge), and gives every run as one process does."""
+    import json
+
+    from mivecc_agents.cli import main
+
+    base = ["evaluate", "--scheme", "EE", "--rows", "1", "--cols", "1", "--density", "2100",
+            "--steps", "400", "--seeds", "4", "0", "2", "--json", "--no-progress",
+            "--set", "model=released", "safety_shield=true"]
+    docs = []
+    for workers in ("1", "2"):
+        assert main([*base, "--workers", workers]) == 0
+        docs.append(json.loads(capsys.readouterr().out))
+    one, two = (doc["runs"] for doc in docs)
+    assert [r["seed"] for r in two] == [4, 0, 2]
+    assert [r["batch_size"] for r in two] == [2, 2, 1] and [r["batch_size"] for r in one] == [3] * 3
+    assert {r["edge_checkpoint"] for r in one + two} == {
+        str(pretrained_path("edge", "released", safety_shield=True))}
+    assert any(r["throughput"] > 0 for r in two)
+    for a, b in zip(one, two, strict=True):
+        assert _same(b, a) == [], a["seed"]
+
+
+def test_cli_workers_must_be_at_least_one(capsys: pytest.CaptureFixture[str]) -> None:
+    from mivecc_agents.cli import main
+
+    assert main(["evaluate", "--seeds", "0", "1", "--workers", "0"]) == 2
+    assert "--workers: must be an integer >= 1, got '0'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("flag", [[], ["--stack-policies"]])
