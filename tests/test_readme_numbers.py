@@ -1246,3 +1246,58 @@ def test_session35_default_table_per_environment_calls():
     for key, row in stacked.items():
         assert {f for f in row if row[f] != per_env[key][f]} <= timing_columns, key
     assert "Every one of the 252 runs with `--per-env-calls` equals" in training
+
+
+def test_session35_stacking_audits_on_other_seeds_and_lengths():
+    """Session 35's stacking audits: every row of the table in docs/training.md, and the
+    times in its command block, from the committed audit files."""
+    import json
+
+    raw = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    audits = ROOT / "docs" / "results" / "training" / "session35" / "audits"
+    reports = {path.stem: json.loads(path.read_text(encoding="utf-8"))
+               for path in audits.glob("*.json")}
+    assert len(reports) == 10
+    for name, report in reports.items():
+        kind, model = name.split("_")[:2]
+        assert report["kind"] == kind and report["threads"] == 1
+        assert ("released" in report["policy"]) == (model == "released")
+        assert ("shield" in report["command"]) == ("shield" in name)
+        assert report["environment_steps_that_differ"] == 0, name
+        steps, envs = (6000, 21) if name.endswith("6000") else (3000, 35)
+        assert (report["steps"], report["environments"]) == (steps, envs), name
+        per_env = steps if kind == "edge" else steps // 10  # the cloud decides every 10 steps
+        assert report["environment_steps"] == envs * per_env, name
+    for row, names in {
+        "| edge, released model, seeds 3-7 | 105 000 | 0 |": ["edge_released_s3to7"],
+        "| edge, default model, seeds 3-7 | 105 000 | 0 |": ["edge_paper_s3to7"],
+        "| cloud, released model, seeds 3-7 | 10 500 | 0 |": ["cloud_released_s3to7"],
+        "| cloud, default model, seeds 3-7 | 10 500 | 0 |": ["cloud_paper_s3to7"],
+        "| edge, released model, 6000 steps | 126 000 | 0 |": ["edge_released_6000"],
+        "| shield edge, released model, 6000 steps | 126 000 | 0 |":
+            ["edge_released_shield_6000"],
+        "| shield edge, default model, 6000 steps | 126 000 | 0 |": ["edge_paper_shield_6000"],
+        "| cloud, released model, 6000 steps (one graph; with the shield) | 12 600 each | 0 |":
+            ["cloud_released_6000", "cloud_released_shield_6000"],
+        "| cloud, default model, 6000 steps, with the shield | 12 600 | 0 |":
+            ["cloud_paper_shield_6000"],
+    }.items():
+        assert row in raw
+        count = int(row.split("|")[2].replace("each", "").replace(" ", ""))
+        assert all(reports[n]["environment_steps"] == count for n in names), row
+    times = dict(line.rsplit(" ", 2)[:2] for line in (audits / "times.txt").read_text(
+        encoding="utf-8").splitlines() if line.endswith(" s"))
+
+    def span(name: str) -> str:
+        minutes, seconds = divmod(round(float(times[name])), 60)
+        return f"{minutes} min {seconds} s"
+
+    block = " ".join(raw.split())
+    assert f"--out runs/s35/audit/edge_released_s3to7 # {span('edge_released_s3to7')}" in block
+    assert (f"--kind cloud ({span('cloud_released_s3to7')}), --model paper (edge "
+            f"{span('edge_paper_s3to7')}, cloud {span('cloud_paper_s3to7')})") in block
+    assert (f"--model released ({span('edge_released_6000')}, "
+            f"{span('cloud_released_6000')})") in block
+    assert (f"--model released ({span('edge_released_shield_6000')}, "
+            f"{span('cloud_released_shield_6000')}) and --model paper "
+            f"({span('edge_paper_shield_6000')}, {span('cloud_paper_shield_6000')})") in block
