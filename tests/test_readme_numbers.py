@@ -1301,3 +1301,23 @@ def test_session35_stacking_audits_on_other_seeds_and_lengths():
     assert (f"--model released ({span('edge_released_shield_6000')}, "
             f"{span('cloud_released_shield_6000')}) and --model paper "
             f"({span('edge_paper_shield_6000')}, {span('cloud_paper_shield_6000')})") in block
+
+
+def test_session35_evaluate_workers_timings():
+    """The ``mivecc evaluate --workers 2`` timings quoted in docs/training.md and the README."""
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    readme = " ".join(README.split())
+    s35 = ROOT / "docs" / "results" / "training" / "session35"
+    three, eight = (_farm_medians(s35 / f"farm_bench_evaluate_workers_{n}seeds.txt")
+                    for n in (3, 8))
+    for n in (3, 8):
+        report = (s35 / f"farm_bench_evaluate_workers_{n}seeds.txt").read_text(encoding="utf-8")
+        a, b = report.split("\nA = ")[1].split("\n")[:2]
+        seeds = " ".join(str(i) for i in range(n))
+        assert a.endswith(f"--seeds {seeds} --json --workers 2") and "--workers" not in b
+        assert b.endswith(f"--seeds {seeds} --json")
+    assert (f"a median wall of {three['A']:.1f} s against {three['B']:.1f} s (ratio "
+            f"{three['A/B']:.2f}, 3 pairs), with `--seeds 0 1 2 3 4 5 6 7` {eight['A']:.1f} s "
+            f"against {eight['B']:.1f} s (ratio {eight['A/B']:.2f}, 2 pairs)") in training
+    assert (f"8 seeds on 2 cores: {eight['A']:.0f} s against {eight['B']:.0f} s; 3 seeds: "
+            f"{three['A']:.0f} s against {three['B']:.0f} s") in readme
