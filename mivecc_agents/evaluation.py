@@ -442,7 +442,10 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """Mean and (population) standard deviation over runs of every numeric key.
 
     A key on which all runs agree keeps its value (standard deviation 0 when numeric);
-    ``seed`` becomes the list of seeds; other non-numeric keys that differ are left out.
+    ``seed`` becomes the list of seeds; other non-numeric keys that differ are left out. A
+    numeric key without data in some run (NaN or inf, e.g. ``min_ttc_s`` before any vehicle
+    pair was measured) has no mean or spread: both are NaN (``null`` in the CLI's JSON), with
+    no numpy warning.
     """
     mean: dict[str, Any] = {}
     std: dict[str, Any] = {}
@@ -453,7 +456,10 @@ def aggregate(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             mean[key] = std[key] = values
         elif numeric and not all(v == values[0] for v in values):
             arr = np.asarray(values, dtype=np.float64)
-            mean[key], std[key] = float(arr.mean()), float(arr.std())
+            if np.isfinite(arr).all():
+                mean[key], std[key] = float(arr.mean()), float(arr.std())
+            else:
+                mean[key] = std[key] = math.nan
         elif all(v == values[0] for v in values):
             mean[key] = values[0]
             std[key] = 0.0 if numeric else values[0]

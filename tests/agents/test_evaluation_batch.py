@@ -88,6 +88,25 @@ def test_cli_workers_share_the_seeds_and_give_the_same_runs(
         assert _same(b, a) == [], a["seed"]
 
 
+def test_aggregate_of_runs_with_and_without_data() -> None:
+    """Means and spreads over seeds; a key without data in one run has neither (NaN), and no
+    numpy warning is raised."""
+    import math
+    import warnings
+
+    from mivecc_agents.evaluation import aggregate
+
+    runs = [{"seed": 0, "v": 12.0, "ttc": math.inf, "scheme": "EE", "tag": "a"},
+            {"seed": 1, "v": 13.0, "ttc": 2.5, "scheme": "EE", "tag": "b"}]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        stats = aggregate(runs)
+    assert stats["mean"]["seed"] == [0, 1] and stats["mean"]["scheme"] == "EE"
+    assert stats["mean"]["v"] == 12.5 and stats["std"]["v"] == 0.5
+    assert math.isnan(stats["mean"]["ttc"]) and math.isnan(stats["std"]["ttc"])
+    assert "tag" not in stats["mean"]
+
+
 def test_cli_workers_must_be_at_least_one(capsys: pytest.CaptureFixture[str]) -> None:
     from mivecc_agents.cli import main
 
