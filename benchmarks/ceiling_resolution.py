@@ -27,7 +27,6 @@ Usage (3x3, released model, shield; about 4 min with two workers here; ``docs/tr
 from __future__ import annotations
 
 import csv
-import multiprocessing as mp
 import os
 import sys
 from collections.abc import Sequence
@@ -36,9 +35,9 @@ from typing import Any
 
 import numpy as np
 from paper_table import DENSITIES, config_overrides
-from tqdm import tqdm
 
 from mivecc_env import cli_args
+from mivecc_env.processes import map_jobs
 
 #: Config fields this script's own options set (not accepted by --set).
 OWN_FIELDS = {"rows": "--grid", "cols": "--grid", "density_vplh": "--densities",
@@ -124,8 +123,7 @@ def main(argv: Sequence[str] | None = None) -> Path:
     constants = [repr(CEILING_ACCEL_MPS2)] + [
         repr(float(np.float32(CEILING_ACCEL_MPS2 - d))) for d in args.deltas]
     jobs = [(v, args.kind, common) for v in ["baseline", "shipped", *constants]]
-    with mp.get_context("spawn").Pool(args.workers) as pool:
-        done = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="runs", file=sys.stderr))
+    done = map_jobs(_run, jobs, args.workers, "runs")
     return write_report(done, args, argv)
 
 

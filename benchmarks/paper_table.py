@@ -39,7 +39,6 @@ from __future__ import annotations
 import csv
 import itertools
 import json
-import multiprocessing as mp
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -47,10 +46,10 @@ from typing import Any
 
 import numpy as np
 from machine_info import describe, machine_info
-from tqdm import tqdm
 
 from mivecc_env import cli_args
 from mivecc_env.config import from_overrides
+from mivecc_env.processes import map_jobs
 
 SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
 #: Constant-action ceilings: the scheme run, and the coordinator replaced by a constant +3 m/s^2
@@ -430,12 +429,8 @@ def main(argv: Sequence[str] | None = None) -> Path:
                          args.per_env_calls))
     if args.from_csv:
         rows = merge_runs([read_runs_csv(path) for path in args.from_csv])
-    elif args.workers > 1:
-        with mp.get_context("spawn").Pool(args.workers) as pool:
-            batches = list(tqdm(pool.imap(_run, jobs), total=len(jobs), desc="batches"))
-        rows = [row for batch in batches for row in batch]
     else:
-        rows = [row for j in tqdm(jobs, desc="batches") for row in _run(j)]
+        rows = [row for batch in map_jobs(_run, jobs, args.workers, "batches") for row in batch]
 
     keys = list(dict.fromkeys(k for row in rows for k in row))
     with open(args.out / "paper_table.csv", "w", newline="") as fh:

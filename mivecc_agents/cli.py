@@ -402,17 +402,13 @@ def _evaluate_seeds(args: argparse.Namespace, overrides: dict[str, Any], seeds: 
     workers = min(args.workers, len(seeds))
     if workers == 1:
         return _evaluate_share((args, overrides, seeds, 0), policies)
-    import multiprocessing as mp
-
-    from tqdm.auto import tqdm
+    from mivecc_env.processes import map_jobs
 
     size, extra = divmod(len(seeds), workers)
     bounds = [i * size + min(i, extra) for i in range(workers + 1)]
     jobs = [(args, overrides, seeds[bounds[i]:bounds[i + 1]], i) for i in range(workers)]
-    with mp.get_context("spawn").Pool(workers) as pool:
-        batches = list(tqdm(pool.imap(_evaluate_share, jobs), total=workers, unit="share",
-                            desc=f"{args.scheme} seeds in {workers} processes", file=sys.stderr,
-                            disable=args.no_progress, leave=False))
+    batches = map_jobs(_evaluate_share, jobs, workers, f"{args.scheme} seeds in {workers} "
+                       "processes", show=not args.no_progress, unit="share", leave=False)
     return [row for batch in batches for row in batch]
 
 
