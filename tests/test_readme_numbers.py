@@ -1246,6 +1246,10 @@ def test_session35_default_table_per_environment_calls():
     for key, row in stacked.items():
         assert {f for f in row if row[f] != per_env[key][f]} <= timing_columns, key
     assert "Every one of the 252 runs with `--per-env-calls` equals" in training
+    totals = [f"{round(sum(float(r[f]) for r in per_env.values())):,}".replace(",", " ")
+              for f in ("arrived", "in_network", "backlog")]
+    assert (f"backlog: {totals[0]}, {totals[1]} and {totals[2]} vehicles summed over the 252 "
+            "runs, both ways)") in training
 
 
 def test_session35_stacking_audits_on_other_seeds_and_lengths():
@@ -1321,3 +1325,12 @@ def test_session35_evaluate_workers_timings():
             f"against {eight['B']:.1f} s (ratio {eight['A/B']:.2f}, 2 pairs)") in training
     assert (f"8 seeds on 2 cores: {eight['A']:.0f} s against {eight['B']:.0f} s; 3 seeds: "
             f"{three['A']:.0f} s against {three['B']:.0f} s") in readme
+    import json
+
+    one, two = (json.loads((s35 / f"evaluate_ee_8seeds{tail}.json").read_text())["runs"]
+                for tail in ("", "_workers2"))
+    assert [r["seed"] for r in one] == [r["seed"] for r in two] == list(range(8))
+    for a, b in zip(one, two, strict=True):
+        assert {k for k in a if a[k] != b[k]} <= {"steps_per_s", "wall_s", "batch_size"}
+    counts = ", ".join(f"{r['arrived']:.0f} / {r['in_network']:.0f}" for r in one)
+    assert f"seeds 0-7: {counts};" in training
