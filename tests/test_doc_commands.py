@@ -97,6 +97,19 @@ def _logical_lines(block: list[tuple[int, str]]) -> Iterator[tuple[int, str]]:
         yield start, " ".join(parts)
 
 
+def timed_commands(words: Sequence[str]) -> list[tuple[str, ...]]:
+    """The commands a ``python benchmarks/time_commands.py`` command times: A after ``--``
+    and B of ``--vs`` (none for any other command)."""
+    if len(words) < 2 or Path(words[1]).name != "time_commands.py":
+        return []
+    timed = []
+    if "--" in words:
+        timed.append(tuple(words[words.index("--") + 1:]))
+    if "--vs" in words[:-1]:
+        timed.append(tuple(shlex.split(words[words.index("--vs") + 1])))
+    return timed
+
+
 def doc_commands(path: Path) -> Iterator[DocCommand]:
     """The ``mivecc`` and ``python benchmarks/...`` commands in ``path``: in its fenced blocks
     (each ``&&``-joined part on its own) and in its inline code spans."""
@@ -105,7 +118,12 @@ def doc_commands(path: Path) -> Iterator[DocCommand]:
         for part in text.split("&&"):
             part = part.strip()
             if START.match(part):
-                yield DocCommand(f"{path.relative_to(ROOT)}:{number}", tuple(shlex.split(part)))
+                where = f"{path.relative_to(ROOT)}:{number}"
+                words = tuple(shlex.split(part))
+                yield DocCommand(where, words)
+                for timed in timed_commands(words):
+                    if START.match(shlex.join(timed)):
+                        yield DocCommand(f"{where} (timed)", timed)
 
     block: list[tuple[int, str]] | None = None
     for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
@@ -212,6 +230,18 @@ def test_extraction_joins_continuations_and_cuts_comments(tmp_path: Path) -> Non
     ]
     assert found[-1].is_name and not found[-1].checkable
     assert DocCommand("x", ("mivecc", "train", "--seed", "$s")).is_pattern
+
+
+def test_a_timed_command_yields_the_commands_it_times(tmp_path: Path) -> None:
+    page = tmp_path / "page.md"
+    page.write_text("```bash\npython benchmarks/time_commands.py -n 2 --vs \"mivecc evaluate "
+                    "--seed 1\" -- python benchmarks/speed.py --quick\n```\n", encoding="utf-8")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr("tests.test_doc_commands.ROOT", tmp_path)
+        found = [(c.where, c.words[:3]) for c in doc_commands(page)]
+    assert found == [("page.md:2", ("python", "benchmarks/time_commands.py", "-n")),
+                     ("page.md:2 (timed)", ("python", "benchmarks/speed.py", "--quick")),
+                     ("page.md:2 (timed)", ("mivecc", "evaluate", "--seed"))]
 
 
 def test_a_bad_option_fails_the_check(monkeypatch: pytest.MonkeyPatch) -> None:
