@@ -1030,13 +1030,6 @@ def _picking_row(run: Path, label: str) -> str:
             + f" | {score:.1f} ({frames:_} frames) |".replace("_", " "))
 
 
-def _farm_medians(path) -> dict[str, float]:
-    """The median wall seconds of A, B and the median A/B ratio in a farm-bench report (each
-    line ends with min, median, max; the A/B line has no unit word)."""
-    return {line.split()[0]: float(line.split()[-2]) for line in path.read_text(
-        encoding="utf-8").splitlines() if line.startswith(("A wall", "B wall", "A/B wall"))}
-
-
 def test_session33_ceiling_resolution_and_stacking_audit():
     """Session 33: constant coordinators a hair below +3 against the +3 ceiling (the table's
     resolution), the stacking audits, and the clouds retrained with uniform draws, from the
@@ -1087,11 +1080,6 @@ def test_session33_ceiling_resolution_and_stacking_audit():
     assert (t1["environment_steps"], b21["environment_steps"]) == (9000, 31_500)
     assert "in 14 of 9000 environment-steps" in training
     assert "nor in 31 500 environment-steps" in training
-    timing = s33 / "per_env_calls_timing"
-    assert "| EE | 21 / 21 |" in (timing / "table_diff.md").read_text(encoding="utf-8")
-    walls = _farm_medians(timing / "farm_bench.txt")
-    assert (f"median wall of {walls['A']:.1f} s against {walls['B']:.1f} s"
-            in training)
     # the clouds retrained with uniform draws, against the shipped cloud on the picking seeds
     scores = {}
     for seed in (0, 1):
@@ -1162,23 +1150,6 @@ def test_session34_stacking_audits_of_every_shipped_policy():
             "over it (with the shield) in 0 of 10 500") in training
 
 
-def test_session34_per_environment_call_timings():
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    readme = " ".join(README.split())
-    timing = ROOT / "docs" / "results" / "training" / "session34" / "per_env_calls_timing"
-    table = _farm_medians(timing / "farm_bench.txt")
-    assert (f"median wall of {table['A']:.1f} s against {table['B']:.1f} s (ratio "
-            f"{table['A/B']:.2f})") in training
-    assert "| E | 42 / 42 |" in (timing / "table_diff.md").read_text(encoding="utf-8")
-    ee, eec = (_farm_medians(timing / f"farm_bench_evaluate_{s}.txt") for s in ("ee", "eec"))
-    assert (f"took a median wall of {ee['A']:.1f} s by default against {ee['B']:.1f} s with "
-            f"`--stack-policies`") in training
-    assert f"`--scheme EEC` {eec['A']:.1f} s against {eec['B']:.1f} s" in training
-    assert f"--seeds 0 1 2 # {ee['A']:.0f} s" in readme
-    assert f"--cloud-checkpoint runs/cloud/cloud.pt # {eec['A']:.0f} s" in readme
-    assert f"--stack-policies: {ee['B']:.0f} s and {eec['B']:.0f} s" in readme
-
-
 def test_session34_rules_only_runs_on_a_cpu_without_avx512():
     """The README tables rerun on an AVX2 CPU against the committed (AVX-512) ones."""
     import csv
@@ -1218,38 +1189,6 @@ def test_session34_rules_only_runs_on_a_cpu_without_avx512():
             "differ; default model: signalized 3 of 42") in training
     assert "released EE and EEC differ in 2 of 42 each" in training
     assert "default EE in 3 of 42" in training and "and EEC in 1 of 42" in training
-
-
-def test_session35_default_table_per_environment_calls():
-    """The default model's README table with and without ``--per-env-calls`` (session 35): the
-    timing figures and the claim that every run, vehicles carried included, is the same."""
-    import csv
-
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    timing = ROOT / "docs" / "results" / "training" / "session35" / "per_env_calls_timing"
-    table = _farm_medians(timing / "farm_bench.txt")
-    assert (f"a median wall of {table['A']:.1f} s against {table['B']:.1f} s (ratio "
-            f"{table['A/B']:.2f})") in training
-    report = (timing / "farm_bench.txt").read_text(encoding="utf-8")
-    assert "--per-env-calls" in report.split("\nB = ")[0] and "(2 of 2)" in report
-
-    def runs(path):
-        with path.open(newline="") as fh:
-            return {(r["rows"], r["scheme"], r["density"], r["seed"]): r
-                    for r in csv.DictReader(fh)}
-
-    stacked = runs(ROOT / "docs" / "results" / "reproducibility" / "session34_avx2" / "default"
-                   / "paper_table.csv")
-    per_env = runs(timing / "paper_table_per_env.csv")
-    assert stacked.keys() == per_env.keys() and len(stacked) == 252
-    timing_columns = {"steps_per_s", "wall_s"}
-    for key, row in stacked.items():
-        assert {f for f in row if row[f] != per_env[key][f]} <= timing_columns, key
-    assert "Every one of the 252 runs with `--per-env-calls` equals" in training
-    totals = [f"{round(sum(float(r[f]) for r in per_env.values())):,}".replace(",", " ")
-              for f in ("arrived", "in_network", "backlog")]
-    assert (f"backlog: {totals[0]}, {totals[1]} and {totals[2]} vehicles summed over the 252 "
-            "runs, both ways)") in training
 
 
 def test_session35_stacking_audits_on_other_seeds_and_lengths():
@@ -1305,32 +1244,3 @@ def test_session35_stacking_audits_on_other_seeds_and_lengths():
     assert (f"--model released ({span('edge_released_shield_6000')}, "
             f"{span('cloud_released_shield_6000')}) and --model paper "
             f"({span('edge_paper_shield_6000')}, {span('cloud_paper_shield_6000')})") in block
-
-
-def test_session35_evaluate_workers_timings():
-    """The ``mivecc evaluate --workers 2`` timings quoted in docs/training.md and the README."""
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    readme = " ".join(README.split())
-    s35 = ROOT / "docs" / "results" / "training" / "session35"
-    three, eight = (_farm_medians(s35 / f"farm_bench_evaluate_workers_{n}seeds.txt")
-                    for n in (3, 8))
-    for n in (3, 8):
-        report = (s35 / f"farm_bench_evaluate_workers_{n}seeds.txt").read_text(encoding="utf-8")
-        a, b = report.split("\nA = ")[1].split("\n")[:2]
-        seeds = " ".join(str(i) for i in range(n))
-        assert a.endswith(f"--seeds {seeds} --json --workers 2") and "--workers" not in b
-        assert b.endswith(f"--seeds {seeds} --json")
-    assert (f"a median wall of {three['A']:.1f} s against {three['B']:.1f} s (ratio "
-            f"{three['A/B']:.2f}, 3 pairs), with `--seeds 0 1 2 3 4 5 6 7` {eight['A']:.1f} s "
-            f"against {eight['B']:.1f} s (ratio {eight['A/B']:.2f}, 2 pairs)") in training
-    assert (f"8 seeds on 2 cores: {eight['A']:.0f} s against {eight['B']:.0f} s; 3 seeds: "
-            f"{three['A']:.0f} s against {three['B']:.0f} s") in readme
-    import json
-
-    one, two = (json.loads((s35 / f"evaluate_ee_8seeds{tail}.json").read_text())["runs"]
-                for tail in ("", "_workers2"))
-    assert [r["seed"] for r in one] == [r["seed"] for r in two] == list(range(8))
-    for a, b in zip(one, two, strict=True):
-        assert {k for k in a if a[k] != b[k]} <= {"steps_per_s", "wall_s", "batch_size"}
-    counts = ", ".join(f"{r['arrived']:.0f} / {r['in_network']:.0f}" for r in one)
-    assert f"seeds 0-7: {counts};" in training
