@@ -219,6 +219,12 @@ AUDIT_ROWS = {
     "cloud_released_per_lane_6000": "cloud on per-lane graphs, released model, 6000 steps",
     "edge_paper_6000": "edge, default model, 6000 steps",
     "cloud_paper_6000": "cloud, default model, 6000 steps",
+    "edge_paper_shield_s3to7": "shield edge, default model, seeds 3-7",
+    "cloud_paper_shield_s3to7": "cloud over it, default model, with the shield, seeds 3-7",
+    "cloud_released_shield_per_lane": "cloud on per-lane graphs, released model, with the shield",
+    "edge_released_shield_picking": "shield edge, released model, picking seeds",
+    "edge_paper_shield_picking": "shield edge, default model, picking seeds",
+    "cloud_released_shield_picking": "cloud, released model, with the shield, picking seeds",
 }
 
 
@@ -235,8 +241,11 @@ def test_stacking_audits():
         assert (report["kind"], report["threads"]) == (kind, 1), name
         assert ("released" in report["policy"]) == (model == "released"), name
         assert ("cloud_graphs=per_lane" in report["command"]) == ("per_lane" in name), name
+        assert ("safety_shield=true" in report["command"]) == ("shield" in name), name
+        assert ("shield" in report["policy"]) == ("shield" in name and kind == "edge"), name
         assert report["random_graph_check_says_exact"], name
-        steps, envs = (6000, 21) if name.endswith("6000") else (3000, 35)
+        steps, envs = {"6000": (6000, 21), "s3to7": (3000, 35), "picking": (1500, 9)}.get(
+            name.rsplit("_", 1)[1], (3000, 21))
         assert (report["steps"], report["environments"]) == (steps, envs), name
         compared = envs * (steps if kind == "edge" else steps // 10)  # the cloud: every 10 steps
         assert report["environment_steps"] == compared, name
@@ -252,3 +261,9 @@ def test_stacking_audits():
     assert f"cloud_graphs=per_lane ({seconds(times['cloud_released_per_lane_6000'])})" in block
     assert (f"--steps 6000 ({seconds(times['edge_paper_6000'])}, "
             f"{seconds(times['cloud_paper_6000'])})") in block
+    assert (f"--seeds 3 4 5 6 7 ({seconds(times['edge_paper_shield_s3to7'])}, "
+            f"{seconds(times['cloud_paper_shield_s3to7'])})") in block
+    assert f"per_lane too ({seconds(times['cloud_released_shield_per_lane'])})" in block
+    assert (f"--model {{released,paper}} ({seconds(times['edge_released_shield_picking'])}, "
+            f"{seconds(times['edge_paper_shield_picking'])}), --kind cloud --model released "
+            f"({seconds(times['cloud_released_shield_picking'])})") in block
