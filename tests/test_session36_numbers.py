@@ -267,3 +267,23 @@ def test_stacking_audits():
     assert (f"--model {{released,paper}} ({seconds(times['edge_released_shield_picking'])}, "
             f"{seconds(times['edge_paper_shield_picking'])}), --kind cloud --model released "
             f"({seconds(times['cloud_released_shield_picking'])})") in block
+
+
+def test_shield_stress_rerun_backs_the_quoted_figures():
+    """The shield stress runs of today's shield (session 36): 0 events with the shield over
+    1.3e8 vehicle-steps, up to 2607 without it, and the raw actions' velocity cost."""
+    text = (S36 / "shield_stress.md").read_text(encoding="utf-8")
+    rows = [line.split("|")[1:-1] for line in text.splitlines()
+            if line.startswith("| paper") or line.startswith("| released")]
+    assert len(rows) == 24  # 2 models x 3 action kinds x shield off / on, on 3x3 and on 1x1
+    on = [r for r in rows if r[2].strip() == "on"]
+    off = [r for r in rows if r[2].strip() == "off"]
+    assert all(int(r[4]) == 0 for r in on)
+    assert f"{sum(float(r[3]) for r in on):.1e}".replace("e+0", "e") == "1.3e8"
+    most = max(int(r[4]) for r in off)
+    assert f"collide up to {most} times per setting without it" in README
+    assert f"in 1.3e8 vehicle-steps; without it: 0-{most} events per setting" in TRAINING
+    costs = [float(a[6]) - float(b[6]) for a, b in zip(off, on, strict=True)
+             if a[1].strip() == "raw"]
+    assert f"the shield costs {min(costs):.1f}-{max(costs):.1f} m/s" in TRAINING
+    assert "2 min; `docs/results/training/session36/shield_stress.md`" in README
