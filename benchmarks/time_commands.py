@@ -1,7 +1,8 @@
 """Whole-process timing of one command, or of two in turn (A B A B ...), with paired ratios.
 
-What the docs' timing paragraphs quote (``docs/training.md``, "Stacking", "Seeds in several
-processes"; ``docs/performance.md``, "The safety shield's cost"): each run is a fresh process,
+What the docs' timing paragraphs quote (``docs/training.md``, "What the per-environment calls
+cost", "Seeds in several processes"; ``docs/performance.md``, "The safety shield's cost"; the
+README's command times): each run is a fresh process,
 timed from its start to its exit (interpreter start-up, imports and numba's cache loading
 included, as a user experiences it), with the operating system's accounting of the finished
 process and the children it waited for (user and system CPU seconds, largest resident set).
