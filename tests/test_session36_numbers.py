@@ -27,14 +27,27 @@ README = _flat(ROOT / "README.md")
 PERFORMANCE = _flat(ROOT / "docs" / "performance.md")
 
 
-def medians(name: str) -> dict[str, float]:
-    """Median wall seconds of A and B and the median paired ratio A/B of a timing report."""
+def wall_spreads(name: str) -> dict[str, tuple[float, float, float]]:
+    """(min, median, max) of the wall seconds of A and B and of the paired ratios A/B of a
+    timing report (its rows ``A wall s``, ``B wall s``, ``A/B wall``)."""
     out = {}
     for line in (TIMING / f"{name}.txt").read_text(encoding="utf-8").splitlines():
-        words = line.split()
         if line.startswith(("A wall", "B wall", "A/B wall")):
-            out[words[0]] = float(words[-2])
+            words = line.split()
+            low, median, high = (float(x) for x in words[-3:])
+            out[words[0]] = (low, median, high)
     return out
+
+
+def medians(name: str) -> dict[str, float]:
+    """Median wall seconds of A and B and the median paired ratio A/B of a timing report."""
+    return {side: spread[1] for side, spread in wall_spreads(name).items()}
+
+
+def ratio_cell(name: str) -> str:
+    """``median (min-max)`` of a report's paired wall ratios, as the docs' tables write it."""
+    low, median, high = wall_spreads(name)["A/B"]
+    return f"{median:.2f} ({low:.2f}-{high:.2f})"
 
 
 def commands(name: str) -> tuple[str, str | None]:
@@ -77,26 +90,16 @@ def test_shield_cost_table():
         a, b = commands(name)
         assert a.endswith("safety_shield=true") and "safety_shield" not in b
         assert ("model=released" in b) == (model == "released")
-        ratios = [float(x) for x in next(
-            line for line in (TIMING / f"{name}.txt").read_text().splitlines()
-            if line.startswith("A/B wall")).split()[-3:]]
+        low, median, high = wall_spreads(name)["A/B"]
         runs = log_json(name)
         assert len(runs) == 16  # a warm-up pair and 7 counted pairs
         fields = ("arrived", "throughput", "in_network", "collided_vehicles")
         sides = [{tuple(int(r[f]) for f in fields) for r in runs[i::2]} for i in (0, 1)]
         assert all(len(side) == 1 for side in sides), name  # every run of a side the same
         workload = " / ".join(", ".join(map(str, side.pop())) for side in sides)
-        row = (f"| {model} | {walls['A']:.3f} | {walls['B']:.3f} | {ratios[1]:.3f} "
-               f"({ratios[0]:.3f}-{ratios[2]:.3f}) | {workload} |")
+        row = (f"| {model} | {walls['A']:.3f} | {walls['B']:.3f} | {median:.3f} "
+               f"({low:.3f}-{high:.3f}) | {workload} |")
         assert row in PERFORMANCE, row
-
-
-def _ratio_cell(name: str) -> str:
-    """``median (min-max)`` of a report's paired wall ratios, as the docs' tables write it."""
-    line = next(line for line in (TIMING / f"{name}.txt").read_text().splitlines()
-                if line.startswith("A/B wall"))
-    low, median, high = (float(x) for x in line.split()[-3:])
-    return f"{median:.2f} ({low:.2f}-{high:.2f})"
 
 
 def _per_env(name: str) -> dict[tuple[str, ...], dict[str, str]]:
@@ -125,7 +128,7 @@ def test_per_environment_call_timings_and_their_same_runs():
         assert schemes and all(same == total for _, same, total in schemes), diff
         assert sum(int(total) for _, _, total in schemes) == runs == len(_per_env(diff))
         row = (f"| {label}: `--per-env-calls` against stacked | {walls['A']:.1f} | "
-               f"{walls['B']:.1f} | {_ratio_cell(name)} | {runs} of {runs} runs "
+               f"{walls['B']:.1f} | {ratio_cell(name)} | {runs} of {runs} runs "
                f"(`table_diff_{diff}.md`) |")
         assert row in TRAINING, row
 
@@ -153,7 +156,7 @@ def test_evaluate_stacking_timings_and_the_readme():
         label = ("`mivecc evaluate --scheme EE` (README, 3 seeds)" if scheme == "EE"
                  else "`mivecc evaluate --scheme EEC` (3 seeds)")
         row = (f"| {label}: default against `--stack-policies` | {walls['A']:.1f} | "
-               f"{walls['B']:.1f} | {_ratio_cell(name)} | every printed figure of seeds 0-2, in "
+               f"{walls['B']:.1f} | {ratio_cell(name)} | every printed figure of seeds 0-2, in "
                "all 8 runs |")
         assert row in TRAINING, row
         for key in ("arrived", "in_network", "avg_travel_velocity_mps",
