@@ -1,0 +1,122 @@
+"""docs/integrations.md's session 37 figures, recomputed from the committed reports.
+
+The example commands of each MARL library were timed with ``benchmarks/time_commands.py``
+(whole processes, each library in its own fresh venv); its reports, per-run JSON and the
+commands' output are under ``docs/results/integrations/session37/``, with the logs of the
+example tests and of the lowest-versions run.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from tests.scripts import load_benchmark
+
+timer = load_benchmark("time_commands")
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "docs" / "results" / "integrations" / "session37"
+DOC = " ".join((ROOT / "docs" / "integrations.md").read_text(encoding="utf-8").split())
+
+#: report name -> (the documented command, the time cell of its table row)
+TIMED = {
+    "torchrl_mappo": ("examples/torchrl_marl.py --algo mappo", "11.9 s"),
+    "torchrl_maddpg": ("examples/torchrl_marl.py --algo maddpg", "12.2 s"),
+    "rllib_ppo": ("examples/rllib_ppo.py --iters 2", "21.4 s"),
+    "rllib_ppo_full_flat": ("examples/rllib_ppo.py --iters 1 --view full --obs flat", "22.1 s"),
+    "sb3_ppo_supersuit": ("examples/sb3_ppo_supersuit.py --steps 1024", "9.7 s"),
+    "sb3_sac_gymnasium": ("examples/sb3_sac_gymnasium.py --steps 300", "9.4 s"),
+}
+BENCHMARL = ("benchmarl_mappo", "benchmarl_ippo", "benchmarl_maddpg")
+
+
+def _runs(name: str) -> tuple[str, list[dict]]:
+    side = json.loads((RESULTS / f"{name}.json").read_text(encoding="utf-8"))["A"]
+    return side["command"], side["runs"]
+
+
+def _median_wall(name: str) -> str:
+    return f"{timer.spread([r['wall_s'] for r in _runs(name)[1]])[1]:.1f} s"
+
+
+def _row(command: str) -> str:
+    """The table row of ``docs/integrations.md``'s session 37 table that runs ``command``."""
+    at = DOC.index("Re-run in session 37 at the code of")
+    table = DOC[at:DOC.index("Every run exited 0", at)]
+    hits = [row for row in table.split(" | |") if f"`python {command}`" in row]
+    assert len(hits) == 1, command
+    return hits[0]
+
+
+@pytest.mark.parametrize("name", sorted(TIMED))
+def test_each_documented_time_is_its_reports_median(name: str) -> None:
+    command, cell = TIMED[name]
+    timed, runs = _runs(name)
+    assert timed.endswith(f"python {command}")
+    assert all(r["exit_code"] == 0 for r in runs)
+    assert len(runs) == (2 if name.startswith("rllib") else 3)
+    assert _median_wall(name) == cell
+    assert f"| {cell} " in _row(command) + " "
+
+
+def test_benchmarl_times_and_returns() -> None:
+    cells = " / ".join(_median_wall(name) for name in BENCHMARL)
+    assert cells == "11.8 s / 11.2 s / 12.5 s"
+    assert cells in _row("examples/benchmarl_marl.py --algo mappo")
+    finals = {}
+    for name in BENCHMARL:
+        assert all(r["exit_code"] == 0 for r in _runs(name)[1])
+        text = (RESULTS / f"{name}.log").read_text(encoding="utf-8")
+        returns = re.findall(r"mean return = ([0-9.]+): 100%", text)
+        assert len(returns) == 8  # 2 progress lines per run, warm-up + 3 counted runs
+        assert len(set(returns)) == 1  # every run ends on the same mean return
+        finals[name] = returns[0]
+    assert finals["benchmarl_mappo"] == finals["benchmarl_ippo"] == "16.674747467041016"
+    assert finals["benchmarl_maddpg"] == "20.470550537109375"
+    for value in ("16.674747467041016", "20.470550537109375"):
+        assert value in DOC
+
+
+def test_torchrl_runs_print_the_same_rewards() -> None:
+    for name in ("torchrl_mappo", "torchrl_maddpg"):
+        text = (RESULTS / f"{name}.log").read_text(encoding="utf-8")
+        rewards = re.findall(r"mean edge reward per round (\[.*\])", text)
+        assert len(rewards) == 4 and len(set(rewards)) == 1
+    assert "`[0.0, 0.6331794261932373]`" in DOC
+    assert "[0.0, 0.6331794261932373]" in (RESULTS / "torchrl_mappo.log").read_text()
+
+
+def test_first_run_compile_times() -> None:
+    ppo = re.findall(r"1024 agent-steps in ([0-9.]+) s",
+                     (RESULTS / "sb3_ppo_supersuit.log").read_text(encoding="utf-8"))
+    assert ppo[0] == "24.6" and {min(ppo[1:]), max(ppo[1:])} == {"0.6", "0.8"}
+    mappo = re.findall(r"200 frames in ([0-9.]+) s",
+                       (RESULTS / "benchmarl_mappo.log").read_text(encoding="utf-8"))
+    assert mappo[:2] == ["24.5", "2.4"]
+    assert "24.6 s for the SB3 PPO steps (0.6-0.8 s in the counted runs)" in DOC
+    assert "24.5 s for BenchMARL MAPPO (2.4 s)" in DOC
+
+
+@pytest.mark.parametrize(("marker", "summary", "seconds"), [
+    ("sb3", "2 passed, 14 deselected", "10 s"),
+    ("benchmarl", "5 passed, 2 skipped, 9 deselected", "23 s"),
+    ("rllib", "3 passed, 13 deselected", "40 s"),
+])
+def test_example_test_logs(marker: str, summary: str, seconds: str) -> None:
+    last = (RESULTS / f"pytest_{marker}.log").read_text(encoding="utf-8").splitlines()[-1]
+    found = re.fullmatch(rf"{summary} in ([0-9.]+)s", last)
+    assert found, last
+    assert f"{float(found.group(1)):.0f} s" == seconds
+    assert f"{seconds})" in DOC or f"{seconds};" in DOC
+
+
+def test_lowest_versions_log() -> None:
+    text = (RESULTS / "lowest_versions_tests.log").read_text(encoding="utf-8")
+    found = re.search(r"(\d+) passed, (\d+) skipped, \d+ warnings in ([0-9.]+)s", text)
+    assert found and found.groups()[:2] == ("582", "11")
+    assert f"{float(found.group(3)):.0f} s" == "111 s"
+    assert "**582 passed, 11 skipped**" in DOC and "in 111 s, no failure" in DOC
