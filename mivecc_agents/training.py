@@ -305,6 +305,9 @@ def _make_collector(
     """
     from torchrl.collectors import Collector, MultiSyncCollector
 
+    # Every collector keeps the env as given: TorchRL would otherwise warn (and, from 0.15,
+    # add an InitTracker transform) for the policy, in the driver or in each worker.
+    keep_env = {"auto_register_policy_transforms": False}
     n = max(1, workers)
     fns = list(env_fn) if isinstance(env_fn, Sequence) else [env_fn] * n
     if len(fns) != n:
@@ -339,6 +342,7 @@ def _make_collector(
                 ray_init_config=init,
                 sync=True,
                 postproc=_flatten_ray_batch,
+                collector_kwargs=dict(keep_env),
             )
         except ConnectionError as exc:
             raise TrainingError(f"cannot connect to Ray at {ray_address!r}: {exc}") from exc
@@ -350,14 +354,15 @@ def _make_collector(
             policy,
             frames_per_batch=frames_per_batch,
             total_frames=total_frames,
+            **keep_env,
         )
     return Collector(
         fns[0],
         policy,
         frames_per_batch=frames_per_batch,
         total_frames=total_frames,
-        auto_register_policy_transforms=False,
         return_same_td=True,
+        **keep_env,
     )
 
 

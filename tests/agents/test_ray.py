@@ -75,7 +75,9 @@ def test_edge_stage_trains_on_local_ray(ray_mod, tmp_path):
     # 120-step (12 s) episodes on 1x1: no vehicle can exit (shortest trip ~23 s): no data
     assert math.isnan(ck["metrics"]["avg_velocity_mps"])
     rows = (tmp_path / "train_log.csv").read_text().splitlines()
-    assert len(rows) == 1 + 4  # header + 4 iterations of 50 frames
+    # the local collector's iterations: 2 environments x 50 steps (frames_per_batch is per
+    # environment), so 2 iterations of 100 frames
+    assert [int(r.split(",")[1]) for r in rows[1:]] == [100, 200]
     assert (tmp_path / "learning_curve.png").is_file()
 
 

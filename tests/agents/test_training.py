@@ -388,6 +388,39 @@ def test_replay_buffer_keeps_each_batch_of_the_reused_collector_buffer() -> None
     torch.testing.assert_close(stored[400:], kept[1].reshape(400, *kept[1].shape[2:]))
 
 
+@pytest.mark.parametrize(("workers", "ray_address"), [(1, None), (2, None), (2, "local")])
+def test_every_collector_keeps_the_env_as_given(monkeypatch, workers, ray_address) -> None:
+    """The local, multi-process and Ray collectors (the Ray one through each worker's
+    ``collector_kwargs``) all opt out of TorchRL's automatic policy transforms, so none warns
+    or, from TorchRL 0.15, adds an InitTracker the local path does not have."""
+    import sys
+    import types
+
+    import torchrl.collectors
+    import torchrl.collectors.distributed
+
+    from mivecc_agents.training import _make_collector
+
+    made = {}
+
+    class Fake:
+        def __init__(self, *args, **kwargs):
+            made["kwargs"] = kwargs
+
+        def update_policy_weights_(self):
+            pass
+
+    for name in ("Collector", "MultiSyncCollector"):
+        monkeypatch.setattr(torchrl.collectors, name, Fake)
+    monkeypatch.setattr(torchrl.collectors.distributed, "RayCollector", Fake)
+    monkeypatch.setitem(sys.modules, "ray", types.ModuleType("ray"))  # ray need not be installed
+    _make_collector(lambda: None, None, 100, 200, workers, ray_address)
+    kwargs = made["kwargs"]
+    if ray_address is not None:
+        kwargs = kwargs["collector_kwargs"]
+    assert kwargs["auto_register_policy_transforms"] is False
+
+
 @pytest.mark.parametrize(("kind", "variant"), [("edge", "paper"), ("edge", "released"),
                                                ("cloud", "per_pick")])
 def test_start_near_sets_every_column_near_the_action(kind: str, variant: str) -> None:
