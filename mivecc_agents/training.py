@@ -321,6 +321,8 @@ def _make_collector(
             ) from exc
         from torchrl.collectors.distributed import RayCollector
 
+        from mivecc_agents.ray_worker import RayWorkerCollector
+
         if frames_per_batch % n:
             raise TrainingError(
                 f"ray: {frames_per_batch} frames per batch cannot be split over {n} workers"
@@ -342,6 +344,7 @@ def _make_collector(
                 ray_init_config=init,
                 sync=True,
                 postproc=_flatten_ray_batch,
+                collector_class=RayWorkerCollector,
                 collector_kwargs=dict(keep_env),
             )
         except ConnectionError as exc:

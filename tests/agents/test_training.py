@@ -417,6 +417,11 @@ def test_every_collector_keeps_the_env_as_given(monkeypatch, workers, ray_addres
     _make_collector(lambda: None, None, 100, 200, workers, ray_address)
     kwargs = made["kwargs"]
     if ray_address is not None:
+        from mivecc_agents.ray_worker import RayWorkerCollector
+
+        # Ray prints an actor's multi-line repr as log lines: the workers' is one line
+        assert kwargs["collector_class"] is RayWorkerCollector
+        assert repr(object.__new__(RayWorkerCollector)) == "RayWorkerCollector()"
         kwargs = kwargs["collector_kwargs"]
     assert kwargs["auto_register_policy_transforms"] is False
 
