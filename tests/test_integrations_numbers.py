@@ -8,6 +8,7 @@ example tests and of the lowest-versions run.
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 from pathlib import Path
@@ -120,3 +121,37 @@ def test_lowest_versions_log() -> None:
     assert found and found.groups()[:2] == ("582", "11")
     assert f"{float(found.group(3)):.0f} s" == "111 s"
     assert "**582 passed, 11 skipped**" in DOC and "in 111 s, no failure" in DOC
+
+
+def test_ray_training_figures() -> None:
+    """docs/training.md's Ray timing: whole processes from the report, the training loop's
+    figures from the last runs' ``train_log.csv``, the Ray tests from their log."""
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    report = json.loads((RESULTS / "ray_train.json").read_text(encoding="utf-8"))
+    ray, local = report["A"], report["B"]
+    assert "--ray-address local" in ray["command"] and "--ray-address" not in local["command"]
+    assert all(r["exit_code"] == 0 for r in ray["runs"] + local["runs"])
+    wall = {side: timer.spread([r["wall_s"] for r in runs["runs"]])[1]
+            for side, runs in (("ray", ray), ("local", local))}
+    peak = {side: timer.spread([r["peak_mib"] for r in runs["runs"]])[1]
+            for side, runs in (("ray", ray), ("local", local))}
+    low, median, high = timer.spread(timer.paired_ratios(
+        [timer.Run(**r) for r in ray["runs"]], [timer.Run(**r) for r in local["runs"]],
+        "wall_s"))
+    assert (f"**{wall['ray']:.1f} s with Ray against {wall['local']:.1f} s without** (median; "
+            f"paired ratio {median:.2f}, {low:.2f}-{high:.2f}), peak memory of the driver "
+            f"{peak['ray']:.0f} MiB against {peak['local']:.0f} MiB") in training
+    rows = {}
+    for side in ("ray", "local"):
+        with open(RESULTS / f"ray_train_log_{side}.csv", encoding="utf-8") as fh:
+            rows[side] = list(csv.DictReader(fh))[-1]
+        assert (rows[side]["frames"], rows[side]["updates"]) == ("1008", "126")
+    figure = {key: [float(rows[side][key]) for side in ("ray", "local")]
+              for key in ("wall_s", "fps_collect", "fps_optim")}
+    assert ("took {:.1f} s against {:.1f} s, collection {:.0f} against {:.0f} frames/s, "
+            "optimisation {:.0f} against {:.0f} samples/s").format(
+        *figure["wall_s"], *figure["fps_collect"], *figure["fps_optim"]) in training
+    last = (RESULTS / "pytest_ray.log").read_text(encoding="utf-8")
+    found = re.search(r"^(\d+) passed in ([0-9.]+)s", last, flags=re.MULTILINE)
+    assert found and found.group(1) == "4"
+    assert f"4 passed in {float(found.group(2)):.0f} s" in training
