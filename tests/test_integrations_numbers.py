@@ -155,3 +155,12 @@ def test_ray_training_figures() -> None:
     found = re.search(r"^(\d+) passed in ([0-9.]+)s", last, flags=re.MULTILINE)
     assert found and found.group(1) == "4"
     assert f"4 passed in {float(found.group(2)):.0f} s" in training
+
+
+def test_two_workers_overshoot() -> None:
+    with open(RESULTS / "workers2_train_log.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(r["iteration"], r["frames"]) for r in rows] == [("1", "480")]
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    assert "collected 480 frames for the 400 asked (one iteration of 2 x 240)" in training
+    assert "--frames 400 --episode-steps 300 --buffer-size 2000 --workers 2" in training
