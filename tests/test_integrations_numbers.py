@@ -164,3 +164,24 @@ def test_two_workers_overshoot() -> None:
     training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
     assert "collected 480 frames for the 400 asked (one iteration of 2 x 240)" in training
     assert "--frames 400 --episode-steps 300 --buffer-size 2000 --workers 2" in training
+
+
+def test_install_records() -> None:
+    """What pip installed in each fresh venv and how long it took."""
+    seconds, versions = {}, {}
+    for lib in ("sb3", "rllib", "benchmarl", "lowest", "ray"):
+        lines = (RESULTS / f"install_{lib}.txt").read_text(encoding="utf-8").splitlines()
+        assert lines[0].startswith("Successfully installed ") and lines[-1] == "rc=0"
+        seconds[lib] = float(lines[1].split()[0])
+        versions[lib] = set(lines[0].split()[2:])
+    assert f"{min(seconds[x] for x in ('sb3', 'rllib', 'benchmarl')):.0f}-" \
+        f"{max(seconds[x] for x in ('sb3', 'rllib', 'benchmarl')):.0f} s each" in DOC
+    assert f"the install took {seconds['lowest']:.0f} s" in DOC
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    assert f'".[dev,ray]"`, {seconds["ray"]:.0f} s: ray 2.60.0' in training
+    assert {"ray-2.60.0", "torch-2.13.0+cpu"} <= versions["rllib"]
+    assert {"stable-baselines3-2.9.2", "supersuit-3.11.0"} <= versions["sb3"]
+    assert {"benchmarl-1.5.2", "torchrl-0.11.1", "tensordict-0.11.0"} <= versions["benchmarl"]
+    assert {"numpy-1.24.4", "numba-0.61.0", "gymnasium-1.1.0",
+            "pettingzoo-1.24.0"} <= versions["lowest"]
+    assert {"ray-2.60.0", "torchrl-0.14.1"} <= versions["ray"]
