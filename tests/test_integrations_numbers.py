@@ -185,3 +185,14 @@ def test_install_records() -> None:
     assert {"numpy-1.24.4", "numba-0.61.0", "gymnasium-1.1.0",
             "pettingzoo-1.24.0"} <= versions["lowest"]
     assert {"ray-2.60.0", "torchrl-0.14.1"} <= versions["ray"]
+
+
+def test_lowest_versions_give_the_readme_bits() -> None:
+    lines = (RESULTS / "lowest_versions_e_run.txt").read_text(encoding="utf-8").splitlines()[1:]
+    assert len(lines) == 3
+    figures = {tuple(line.split(": ")[-1].split()) for line in lines}
+    assert figures == {("12.446051785431159", "12.447966657973723")}
+    # the README command's output, as docs/training.md records it
+    training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
+    assert "same bits as without (12.446051785431159 m/s" in " ".join(training.split())
+    assert "prints `12.446051785431159 12.447966657973723` in both venvs" in DOC
