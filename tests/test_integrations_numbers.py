@@ -196,3 +196,13 @@ def test_lowest_versions_give_the_readme_bits() -> None:
     training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
     assert "same bits as without (12.446051785431159 m/s" in " ".join(training.split())
     assert "prints `12.446051785431159 12.447966657973723` in both venvs" in DOC
+
+
+def test_ray_against_a_running_head() -> None:
+    log = (RESULTS / "ray_auto.log").read_text(encoding="utf-8").splitlines()
+    assert len(log) == 5
+    assert "Connecting to existing Ray cluster" in log[0] and log[-1].endswith("/edge.pt")
+    with open(RESULTS / "ray_auto_train_log.csv", encoding="utf-8") as fh:
+        assert [r["frames"] for r in csv.DictReader(fh)] == ["1008"]
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    assert "trained its 1008 frames and wrote `edge.pt`, printing 5 lines" in training
