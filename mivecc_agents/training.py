@@ -359,6 +359,8 @@ def _make_collector(
             total_frames=total_frames,
             **keep_env,
         )
+    if total_frames > 0:  # whole batches, as collected anyway (TorchRL warns otherwise)
+        total_frames = -(-total_frames // frames_per_batch) * frames_per_batch
     return Collector(
         fns[0],
         policy,

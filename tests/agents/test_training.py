@@ -255,6 +255,24 @@ def test_training_leaves_the_global_torch_rng_alone(tmp_path):
     assert torch.equal(torch.rand(3), expected)
 
 
+def test_a_run_of_partial_batches_collects_whole_batches_without_warning(tmp_path) -> None:
+    """150 frames with batches of 2 environments x 50 steps: 2 whole batches (200 frames), as
+    TorchRL collects anyway, without its "total_frames is not exactly divisible" warning."""
+    import warnings
+
+    from mivecc_agents.training import train
+    from tests.agents.tiny import TINY
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        path = train("edge", TINY, frames=150, rows=1, cols=1, densities=1500, seed=0,
+                     out_dir=tmp_path, progress=False)
+    assert not [w for w in caught if "not exactly divisible" in str(w.message)]
+    assert load_checkpoint(path, expected_kind="edge")["frames"] == 200
+    rows = (tmp_path / "train_log.csv").read_text().splitlines()[1:]
+    assert [int(r.split(",")[1]) for r in rows] == [100, 200]
+
+
 @pytest.mark.slow
 def test_two_collector_processes_train(tmp_path):
     """workers=2: MultiSyncCollector (two processes) feeds the same training loop."""
