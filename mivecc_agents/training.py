@@ -302,12 +302,18 @@ def _make_collector(
     by the next batch: the training loop copies what it keeps (into the replay buffer) before
     asking for the next one. Without it TorchRL clones every batch, a fresh copy of all its
     observations (about 650 MB per stage-II batch of 48 x 100 frames).
+
+    ``frames_per_batch`` is what all workers together collect per iteration; the training loop
+    makes it whole steps of every worker's environments, so each worker's share is exact and
+    ``total_frames`` is rounded up to whole batches (what TorchRL would collect anyway).
     """
     from torchrl.collectors import Collector, MultiSyncCollector
 
     # Every collector keeps the env as given: TorchRL would otherwise warn (and, from 0.15,
     # add an InitTracker transform) for the policy, in the driver or in each worker.
     keep_env = {"auto_register_policy_transforms": False}
+    if total_frames > 0:  # whole batches, as collected anyway (TorchRL warns otherwise)
+        total_frames = -(-total_frames // frames_per_batch) * frames_per_batch
     n = max(1, workers)
     fns = list(env_fn) if isinstance(env_fn, Sequence) else [env_fn] * n
     if len(fns) != n:
@@ -359,8 +365,6 @@ def _make_collector(
             total_frames=total_frames,
             **keep_env,
         )
-    if total_frames > 0:  # whole batches, as collected anyway (TorchRL warns otherwise)
-        total_frames = -(-total_frames // frames_per_batch) * frames_per_batch
     return Collector(
         fns[0],
         policy,
@@ -767,11 +771,14 @@ def _train(
         noise.step(state["frames"])
     policy = make_policy(stage, actor, noise, frozen_edge, groups=env_groups(probe))
     remaining = max(0, total_frames - state["frames"])
-    # steps of each env per iteration: the preset's, fewer if the run is shorter than that
-    fpb = n_envs * max(1, min(p.frames_per_batch, -(-remaining // n_envs)))
+    # steps of each env per iteration: the preset's, fewer if the run is shorter than that;
+    # several collector workers (each with its own n_envs environments) share them
+    n_workers = max(1, workers)
+    steps = -(-max(1, min(p.frames_per_batch, -(-remaining // n_envs))) // n_workers)
     cloud_period = _cloud_period(stage, overrides, dens[0])
     if cloud_period > 1:  # whole decision blocks per batch (cloud_macro_transitions)
-        fpb = n_envs * cloud_period * max(1, fpb // (n_envs * cloud_period))
+        steps = cloud_period * max(1, steps // cloud_period)
+    fpb = n_workers * n_envs * steps  # what the collector(s) really collect per iteration
 
     # --- replay buffer, sized on purpose ---------------------------------------------------
     keys = _buffer_keys(group)

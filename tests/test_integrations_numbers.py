@@ -162,7 +162,7 @@ def test_two_workers_overshoot() -> None:
         rows = list(csv.DictReader(fh))
     assert [(r["iteration"], r["frames"]) for r in rows] == [("1", "480")]
     training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    assert "collected 480 frames for the 400 asked (one iteration of 2 x 240)" in training
+    assert "there 480 frames for the 400 asked (one iteration of 2 x 240" in training
     assert "--frames 400 --episode-steps 300 --buffer-size 2000 --workers 2" in training
 
 
