@@ -21,7 +21,15 @@ timer = load_benchmark("time_commands")
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "docs" / "results" / "integrations" / "session37"
-DOC = " ".join((ROOT / "docs" / "integrations.md").read_text(encoding="utf-8").split())
+
+
+def _flat(path: Path) -> str:
+    """A Markdown file's text with every run of whitespace made one space."""
+    return " ".join(path.read_text(encoding="utf-8").split())
+
+
+DOC = _flat(ROOT / "docs" / "integrations.md")
+TRAINING = _flat(ROOT / "docs" / "training.md")
 
 #: report name -> (the documented command, the time cell of its table row)
 TIMED = {
@@ -38,6 +46,12 @@ BENCHMARL = ("benchmarl_mappo", "benchmarl_ippo", "benchmarl_maddpg")
 def _runs(name: str) -> tuple[str, list[dict]]:
     side = json.loads((RESULTS / f"{name}.json").read_text(encoding="utf-8"))["A"]
     return side["command"], side["runs"]
+
+
+def _csv_rows(name: str) -> list[dict[str, str]]:
+    """The rows of a committed ``train_log.csv`` copy."""
+    with open(RESULTS / name, encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
 
 
 def _median_wall(name: str) -> str:
@@ -126,7 +140,6 @@ def test_lowest_versions_log() -> None:
 def test_ray_training_figures() -> None:
     """docs/training.md's Ray timing: whole processes from the report, the training loop's
     figures from the last runs' ``train_log.csv``, the Ray tests from their log."""
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
     report = json.loads((RESULTS / "ray_train.json").read_text(encoding="utf-8"))
     ray, local = report["A"], report["B"]
     assert "--ray-address local" in ray["command"] and "--ray-address" not in local["command"]
@@ -140,30 +153,27 @@ def test_ray_training_figures() -> None:
         "wall_s"))
     assert (f"**{wall['ray']:.1f} s with Ray against {wall['local']:.1f} s without** (median; "
             f"paired ratio {median:.2f}, {low:.2f}-{high:.2f}), peak memory of the driver "
-            f"{peak['ray']:.0f} MiB against {peak['local']:.0f} MiB") in training
+            f"{peak['ray']:.0f} MiB against {peak['local']:.0f} MiB") in TRAINING
     rows = {}
     for side in ("ray", "local"):
-        with open(RESULTS / f"ray_train_log_{side}.csv", encoding="utf-8") as fh:
-            rows[side] = list(csv.DictReader(fh))[-1]
+        rows[side] = _csv_rows(f"ray_train_log_{side}.csv")[-1]
         assert (rows[side]["frames"], rows[side]["updates"]) == ("1008", "126")
     figure = {key: [float(rows[side][key]) for side in ("ray", "local")]
               for key in ("wall_s", "fps_collect", "fps_optim")}
     assert ("took {:.1f} s against {:.1f} s, collection {:.0f} against {:.0f} frames/s, "
             "optimisation {:.0f} against {:.0f} samples/s").format(
-        *figure["wall_s"], *figure["fps_collect"], *figure["fps_optim"]) in training
+        *figure["wall_s"], *figure["fps_collect"], *figure["fps_optim"]) in TRAINING
     last = (RESULTS / "pytest_ray.log").read_text(encoding="utf-8")
     found = re.search(r"^(\d+) passed in ([0-9.]+)s", last, flags=re.MULTILINE)
     assert found and found.group(1) == "4"
-    assert f"4 passed in {float(found.group(2)):.0f} s" in training
+    assert f"4 passed in {float(found.group(2)):.0f} s" in TRAINING
 
 
 def test_two_workers_overshoot() -> None:
-    with open(RESULTS / "workers2_train_log.csv", encoding="utf-8") as fh:
-        rows = list(csv.DictReader(fh))
+    rows = _csv_rows("workers2_train_log.csv")
     assert [(r["iteration"], r["frames"]) for r in rows] == [("1", "480")]
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    assert "there 480 frames for the 400 asked (one iteration of 2 x 240" in training
-    assert "--frames 400 --episode-steps 300 --buffer-size 2000 --workers 2" in training
+    assert "there 480 frames for the 400 asked (one iteration of 2 x 240" in TRAINING
+    assert "--frames 400 --episode-steps 300 --buffer-size 2000 --workers 2" in TRAINING
 
 
 def test_install_records() -> None:
@@ -177,8 +187,7 @@ def test_install_records() -> None:
     assert f"{min(seconds[x] for x in ('sb3', 'rllib', 'benchmarl')):.0f}-" \
         f"{max(seconds[x] for x in ('sb3', 'rllib', 'benchmarl')):.0f} s each" in DOC
     assert f"the install took {seconds['lowest']:.0f} s" in DOC
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    assert f'".[dev,ray]"`, {seconds["ray"]:.0f} s: ray 2.60.0' in training
+    assert f'".[dev,ray]"`, {seconds["ray"]:.0f} s: ray 2.60.0' in TRAINING
     assert {"ray-2.60.0", "torch-2.13.0+cpu"} <= versions["rllib"]
     assert {"stable-baselines3-2.9.2", "supersuit-3.11.0"} <= versions["sb3"]
     assert {"benchmarl-1.5.2", "torchrl-0.11.1", "tensordict-0.11.0"} <= versions["benchmarl"]
@@ -193,8 +202,7 @@ def test_lowest_versions_give_the_readme_bits() -> None:
     figures = {tuple(line.split(": ")[-1].split()) for line in lines}
     assert figures == {("12.446051785431159", "12.447966657973723")}
     # the README command's output, as docs/training.md records it
-    training = (ROOT / "docs" / "training.md").read_text(encoding="utf-8")
-    assert "same bits as without (12.446051785431159 m/s" in " ".join(training.split())
+    assert "same bits as without (12.446051785431159 m/s" in TRAINING
     assert "prints `12.446051785431159 12.447966657973723` in both venvs" in DOC
 
 
@@ -202,7 +210,5 @@ def test_ray_against_a_running_head() -> None:
     log = (RESULTS / "ray_auto.log").read_text(encoding="utf-8").splitlines()
     assert len(log) == 5
     assert "Connecting to existing Ray cluster" in log[0] and log[-1].endswith("/edge.pt")
-    with open(RESULTS / "ray_auto_train_log.csv", encoding="utf-8") as fh:
-        assert [r["frames"] for r in csv.DictReader(fh)] == ["1008"]
-    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
-    assert "trained its 1008 frames and wrote `edge.pt`, printing 5 lines" in training
+    assert [r["frames"] for r in _csv_rows("ray_auto_train_log.csv")] == ["1008"]
+    assert "trained its 1008 frames and wrote `edge.pt`, printing 5 lines" in TRAINING
