@@ -13,7 +13,7 @@ is meaningful on a shared machine:
 Measurements (each with the training code itself: ``training.env_factory``,
 ``training.make_policy``, ``DDPGLearner.update``, ``training.train``):
 
-* collection: the collector ``mivecc train`` builds (``training._make_collector``, one
+* collection: the collector ``mivecc train`` builds (``collectors.make_collector``, one
   process) with the exploration policy (stage I: edge actor + noise; stage II: frozen edge
   actor + cloud actor + noise), frames/s of its batches after one warm-up batch (the time
   inside the collector: the copies kept for the learner timing are made outside it, as the
@@ -44,6 +44,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch (see thread_
 import torch
 
 from mivecc_agents import training
+from mivecc_agents.collectors import make_collector
 from mivecc_agents.learner import DDPGLearner
 from mivecc_agents.networks import make_actor, make_critic
 from mivecc_agents.presets import get_preset, thread_settings
@@ -95,7 +96,7 @@ def collect(stage: str, path: str, frames: int, steps_per_env: int, envs_per_den
     env_fn, n_envs, policy, *_ = _setup(stage, path, envs_per_density)
     fpb = steps_per_env * n_envs
     torch.set_num_threads(1 if path == "old" else _threads(stage))
-    col = training._make_collector(env_fn, policy, fpb, -1, 1, None)
+    col = make_collector(env_fn, policy, fpb, -1, 1, None)
     it = iter(col)
     first = next(it)
     if keep is not None:

@@ -1,4 +1,4 @@
-"""The collector class each Ray worker of :func:`mivecc_agents.training._make_collector` runs.
+"""The collector class each Ray worker of :func:`mivecc_agents.collectors.make_collector` runs.
 
 Ray names an actor's log lines after the actor's ``repr``; a worker prints that ``repr`` when it
 starts, and Ray prints every line of it past the first to the driver as if the worker had

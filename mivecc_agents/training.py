@@ -16,17 +16,21 @@ Masking: padded columns (no vehicle) are zeroed by the actor, again after the ex
 and the critic multiplies the action by the mask. The critic outputs one value per agent (not
 per column), so padded columns enter neither the TD error nor the actor gradient: the plain
 mean of DDPGLoss is already the right loss, no masked reduction is needed.
+
+This module runs a training (:func:`train`); its pieces live in :mod:`mivecc_agents.stages`
+(stages, groups, ``TrainingError``), :mod:`mivecc_agents.train_envs` (the envs),
+:mod:`mivecc_agents.collectors` (the collector), :mod:`mivecc_agents.train_log` (the log and
+its figure) and :mod:`mivecc_agents.learner` (the updates). Their public names are also
+importable from here.
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
 import inspect
 import math
 import time
 from collections.abc import Callable, Sequence
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -41,14 +45,9 @@ from mivecc_agents.checkpoints import (
     network_variant,
     save_checkpoint,
 )
+from mivecc_agents.collectors import make_collector
 from mivecc_agents.exploration import make_exploration
-from mivecc_agents.learner import (
-    SATURATED_Z,
-    DDPGLearner,
-    UpdateStats,
-    make_loss,
-    saturated_share,
-)
+from mivecc_agents.learner import DDPGLearner, UpdateStats, make_loss, saturated_share
 from mivecc_agents.macro_steps import cloud_macro_transitions
 from mivecc_agents.networks import (
     ACTION_SCALE_MPS2,
@@ -58,6 +57,23 @@ from mivecc_agents.networks import (
 )
 from mivecc_agents.presets import DEFAULT_PRESET, TrainPreset, get_preset
 from mivecc_agents.reward_shaping import potential_keys, shape_rewards
+from mivecc_agents.stages import GROUPS, STAGES, TrainingError
+from mivecc_agents.train_envs import (
+    density_list,
+    env_factory,
+    env_groups,
+    make_env,
+    make_native_env,
+    worker_env_fns,
+)
+from mivecc_agents.train_log import (
+    log_fields,
+    log_row,
+    log_tensorboard,
+    open_log,
+    plot_learning_curve,
+    tensorboard_writer,
+)
 
 __all__ = [
     "GROUPS",
@@ -65,6 +81,7 @@ __all__ = [
     "TrainingError",
     "TrainingInterrupted",
     "env_factory",
+    "iteration_frames",
     "make_env",
     "make_loss",
     "make_native_env",
@@ -72,75 +89,6 @@ __all__ = [
     "plot_learning_curve",
     "train",
 ]
-
-GROUPS = ("edge", "cloud")
-STAGES: dict[str, dict[str, str]] = {
-    "edge": {"scheme": "EE", "group": "edge"},
-    "cloud": {"scheme": "EEC", "group": "cloud"},
-}
-
-
-class TrainingError(RuntimeError):
-    """Training cannot start (bad arguments, missing stage-I checkpoint, missing ray...)."""
-
-
-# --------------------------------------------------------------------------------------------
-# Environment
-def make_env(config_overrides: dict[str, Any] | None = None, scheme: str | None = None):
-    """Build the TorchRL env: PettingZoo wrapper + ``(g, "mask")`` at root and under ``next``.
-
-    Args:
-        config_overrides: MiVeCC config fields (``rows``, ``cols``, ``density``, ...).
-        scheme: ``"E"``, ``"EE"`` or ``"EEC"`` (overrides the config's).
-
-    Returns:
-        A ``TransformedEnv`` with groups ``edge`` and ``cloud``.
-    """
-    from torchrl.envs import Compose, PettingZooWrapper, RenameTransform, TransformedEnv
-
-    from mivecc_env import mivecc_v0
-
-    overrides = dict(config_overrides or {})
-    if scheme is not None:
-        overrides["scheme"] = scheme
-    base = PettingZooWrapper(
-        mivecc_v0.parallel_env(**overrides),
-        use_mask=False,
-        categorical_actions=False,
-        return_state=False,
-    )
-    groups = [g for g in GROUPS if g in base.group_map]
-    return TransformedEnv(
-        base,
-        Compose(
-            RenameTransform(
-                in_keys=[(g, "info", "mask") for g in groups],
-                out_keys=[(g, "mask") for g in groups],
-                create_copy=True,
-            ),
-            _episode_reward_sum(base),
-        ),
-    )
-
-
-def _episode_reward_sum(base: Any) -> Any:
-    """``RewardSum`` of each agent group's reward into ``(g, "episode_reward")``."""
-    from torchrl.envs import RewardSum
-
-    groups = [g for g in GROUPS if g in base.group_map]
-    return RewardSum(
-        in_keys=[(g, "reward") for g in groups],
-        out_keys=[(g, "episode_reward") for g in groups],
-    )
-
-
-def _make_batched_env(densities: Sequence[float], overrides: dict[str, Any], scheme: str):
-    """One env per density in a SerialEnv (batch dim 0 indexes the density)."""
-    from torchrl.envs import SerialEnv
-
-    fns = [partial(make_env, {**overrides, "density": float(d)}, scheme) for d in densities]
-    return SerialEnv(len(fns), fns)
-
 
 # --------------------------------------------------------------------------------------------
 # Policy pieces
@@ -223,158 +171,6 @@ def _buffer_keys(group: str) -> list:
     ]
 
 
-def _fmt_density(d: float) -> str:
-    return f"{d:g}"
-
-
-def plot_learning_curve(csv_path: str | Path, png_path: str | Path | None = None) -> Path:
-    """Plot average travel velocity [m/s] vs frames per density from the CSV log: the running
-    value of the current episode (thin) and the value at each episode's end (dots); the
-    losses; and, where the log has it, the share of the actor's saturated outputs [%]."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import FuncFormatter
-
-    csv_path = Path(csv_path)
-    png_path = Path(png_path) if png_path else csv_path.with_suffix(".png")
-    with csv_path.open() as fh:
-        rows = list(csv.DictReader(fh))
-    saturation = bool(rows) and "actor_saturated" in rows[0]  # not in older runs' logs
-    fig, axes = plt.subplots(1, 3 if saturation else 2, figsize=(16 if saturation else 11, 4))
-    if rows:
-        frames = [float(r["frames"]) for r in rows]
-        ecols = [c for c in rows[0] if c.startswith("episode_velocity_mps_d")]
-        for c in ecols:
-            d = c[22:]
-            # running value of the current episode (thin), final value of each episode (dots)
-            line, = axes[0].plot(frames, [float(r[f"avg_velocity_mps_d{d}"]) for r in rows],
-                                 lw=0.8, alpha=0.5, label=f"{d} veh/lane/h, running")
-            pts = [(f, float(r[c])) for f, r in zip(frames, rows, strict=True) if r[c] != "nan"]
-            if pts:
-                xs, ys = zip(*pts, strict=True)
-                axes[0].plot(xs, ys, "o-", color=line.get_color(),
-                             label=f"{d} veh/lane/h, episode end")
-        axes[1].plot(frames, [float(r["critic_loss"]) for r in rows], label="critic loss")
-        axes[1].plot(frames, [float(r["actor_loss"]) for r in rows], label="actor loss")
-    axes[0].set_xlabel("environment frames [steps]")
-    axes[0].set_ylabel("average travel velocity [m/s]")
-    axes[0].set_title("average travel velocity of the episode (chunk)")
-    axes[0].legend(title="density")
-    axes[1].set_xlabel("environment frames [steps]")
-    axes[1].set_ylabel("loss [-]")
-    axes[1].set_yscale("symlog")
-    axes[1].legend()
-    if saturation:
-        share = [100 * float(r["actor_saturated"] or "nan") for r in rows]
-        axes[2].plot([float(r["frames"]) for r in rows], share, "o-", lw=1.0, ms=2)
-        axes[2].set_xlabel("environment frames [steps]")
-        axes[2].set_ylabel(f"actor outputs with |z| > {SATURATED_Z:g} [%]")
-        axes[2].set_ylim(-2, 102)
-        axes[2].set_title("saturated actor outputs (real columns)")
-    thousands = FuncFormatter(lambda x, _: f"{x / 1000:g}k" if x else "0")
-    for ax in axes:  # "150k", not "150000": full numbers overlap on three panels
-        ax.xaxis.set_major_formatter(thousands)
-    fig.tight_layout()
-    fig.savefig(png_path, dpi=100)
-    plt.close(fig)
-    return png_path
-
-
-def _flatten_ray_batch(data: TensorDictBase) -> TensorDictBase:
-    """RayCollector stacks its workers' ``(n_densities, T)`` batches into ``(workers, n_dens,
-    T)``: join the workers along time -> ``(n_densities, workers*T)``, the local layout."""
-    return torch.cat(data.unbind(0), dim=1) if data.shape[0] > 1 else data[0]
-
-
-def _make_collector(
-    env_fn: Callable | Sequence[Callable],
-    policy,
-    frames_per_batch,
-    total_frames,
-    workers,
-    ray_address,
-):
-    """Collector over ``env_fn`` (or one factory per worker): local, multi-process or Ray.
-
-    The local collector yields its own rollout buffer (``return_same_td=True``), overwritten
-    by the next batch: the training loop copies what it keeps (into the replay buffer) before
-    asking for the next one. Without it TorchRL clones every batch, a fresh copy of all its
-    observations (about 650 MB per stage-II batch of 48 x 100 frames).
-
-    ``frames_per_batch`` is what all workers together collect per iteration; the training loop
-    makes it whole steps of every worker's environments, so each worker's share is exact and
-    ``total_frames`` is rounded up to whole batches (what TorchRL would collect anyway).
-    """
-    from torchrl.collectors import Collector, MultiSyncCollector
-
-    # Every collector keeps the env as given: TorchRL would otherwise warn (and, from 0.15,
-    # add an InitTracker transform) for the policy, in the driver or in each worker.
-    keep_env = {"auto_register_policy_transforms": False}
-    if total_frames > 0:  # whole batches, as collected anyway (TorchRL warns otherwise)
-        total_frames = -(-total_frames // frames_per_batch) * frames_per_batch
-    n = max(1, workers)
-    fns = list(env_fn) if isinstance(env_fn, Sequence) else [env_fn] * n
-    if len(fns) != n:
-        raise TrainingError(f"{len(fns)} env factories for {n} workers")
-    if ray_address is not None:
-        try:
-            import ray  # noqa: F401
-        except ImportError as exc:
-            raise TrainingError(
-                "ray_address needs ray: install it with `pip install mivecc[ray]`"
-            ) from exc
-        from torchrl.collectors.distributed import RayCollector
-
-        from mivecc_agents.ray_worker import RayWorkerCollector
-
-        if frames_per_batch % n:
-            raise TrainingError(
-                f"ray: {frames_per_batch} frames per batch cannot be split over {n} workers"
-            )
-        # "local": start a fresh single-node Ray instance with enough CPUs for the workers
-        # (each remote collector asks for 1 CPU); "auto" / "host:port" / "ray://..." go to
-        # ray.init(address=...). If ray is already initialised, RayCollector uses that runtime.
-        init: dict[str, Any] = {"address": ray_address}
-        if ray_address == "local":
-            import os
-
-            init.update(num_cpus=max(n, os.cpu_count() or 1), include_dashboard=False)
-        try:
-            collector = RayCollector(
-                fns,
-                policy,
-                frames_per_batch=frames_per_batch,
-                total_frames=total_frames,
-                ray_init_config=init,
-                sync=True,
-                postproc=_flatten_ray_batch,
-                collector_class=RayWorkerCollector,
-                collector_kwargs=dict(keep_env),
-            )
-        except ConnectionError as exc:
-            raise TrainingError(f"cannot connect to Ray at {ray_address!r}: {exc}") from exc
-        collector.update_policy_weights_()  # connect the weight sync before the first batch
-        return collector
-    if n > 1:
-        return MultiSyncCollector(
-            fns,
-            policy,
-            frames_per_batch=frames_per_batch,
-            total_frames=total_frames,
-            **keep_env,
-        )
-    return Collector(
-        fns[0],
-        policy,
-        frames_per_batch=frames_per_batch,
-        total_frames=total_frames,
-        return_same_td=True,
-        **keep_env,
-    )
-
-
 def train(*args: Any, **kwargs: Any) -> Path:
     """Train one stage (see :func:`_train` for the arguments); returns the final checkpoint.
 
@@ -431,103 +227,6 @@ class _StopOnSigint:
 
         if self._old is not None:
             signal.signal(signal.SIGINT, self._old)
-
-
-def _densities(densities: float | Sequence[float]) -> list[float]:
-    if isinstance(densities, (int, float)):
-        return [float(densities)]
-    dens = [float(d) for d in densities]
-    if not dens:
-        raise TrainingError("at least one density is needed")
-    return dens
-
-
-def env_factory(
-    backend: str,
-    densities: Sequence[float],
-    overrides: dict[str, Any],
-    scheme: str,
-    envs_per_density: int = 1,
-    seed: int | None = None,
-    env_options: dict[str, Any] | None = None,
-) -> tuple[Callable[[], Any], list[int]]:
-    """The collector's env factory and the density index of each of its environments.
-
-    Args:
-        backend: ``"native"`` (:class:`~mivecc_agents.torchrl_env.MiVeCCTorchEnv`, one
-            simulator for ``envs_per_density x len(densities)`` environments) or
-            ``"pettingzoo"`` (``PettingZooWrapper`` envs in a ``SerialEnv``, one per density).
-        densities: Training densities [veh/lane/h].
-        overrides: Env config fields (grid, episode length...).
-        scheme: ``"EE"`` or ``"EEC"``.
-        envs_per_density: Environments per density (native backend).
-        seed: Native backend: seed of the env (environment ``b`` gets ``seed + b``).
-        env_options: Native backend: ``continuous`` / ``raw_edge_period`` of
-            :class:`~mivecc_agents.torchrl_env.MiVeCCTorchEnv` (the pettingzoo backend has
-            neither: asking for them there is a ``TrainingError``).
-
-    Returns:
-        ``(factory, env_density)`` with ``env_density[b]`` the index into ``densities`` of
-        environment ``b`` (batch dim 0 of the collected data).
-    """
-    options = {k: v for k, v in (env_options or {}).items() if v}
-    if backend == "pettingzoo":
-        if options:
-            raise TrainingError(
-                f"backend 'pettingzoo' has no {sorted(options)}: use the native backend"
-            )
-        return partial(_make_batched_env, list(densities), overrides, scheme), list(
-            range(len(densities))
-        )
-    if backend != "native":
-        raise TrainingError(f"backend: must be 'native' or 'pettingzoo', got {backend!r}")
-    if envs_per_density < 1:
-        raise TrainingError(f"envs_per_density: must be >= 1, got {envs_per_density}")
-    env_density = [i for i in range(len(densities)) for _ in range(envs_per_density)]
-    per_env = [float(densities[i]) for i in env_density]
-    return partial(make_native_env, per_env, overrides, scheme, seed, **options), env_density
-
-
-#: Groups the native env exposes in each stage (stage I needs no cloud graph).
-_STAGE_GROUPS = {"EE": ("edge",), "EEC": ("edge", "cloud")}
-#: Episode-summary keys the training log reads.
-_LOG_KEYS = ("avg_travel_velocity_mps", "collisions", "throughput")
-
-
-def make_native_env(
-    densities: Sequence[float],
-    overrides: dict[str, Any],
-    scheme: str,
-    seed: int | None = None,
-    **options: Any,
-):
-    """Native batched TorchRL env (one environment per entry of ``densities``) + RewardSum.
-
-    It has the keys of :func:`make_env` that training reads: ``(g, "mask")`` at the root and
-    under ``next``, and the ``(g, "info")`` summary keys of the log. Scheme ``EE`` exposes only
-    the ``edge`` group (stage I acts on no cloud graph, so none is built). ``options``:
-    ``continuous``, ``raw_edge_period`` of the env.
-    """
-    from torchrl.envs import TransformedEnv
-
-    from mivecc_agents.torchrl_env import MiVeCCTorchEnv
-
-    base = MiVeCCTorchEnv(
-        densities=list(densities),
-        scheme=scheme,
-        groups=_STAGE_GROUPS.get(scheme, GROUPS),
-        summary_keys=_LOG_KEYS,
-        seed=seed,
-        **options,
-        **overrides,
-    )
-    return TransformedEnv(base, _episode_reward_sum(base))
-
-
-def env_groups(env: Any) -> list[str]:
-    """The agent groups (``edge``, ``cloud``) that an env (or a batch of envs) has."""
-    acts = env.full_action_spec.keys()
-    return [g for g in GROUPS if g in acts]
 
 
 def learner_device(device: str | torch.device, name: str = "device") -> torch.device:
@@ -602,6 +301,208 @@ def _load_start(resume: str | Path, stage: str, group: str) -> dict[str, Any]:
     return ck
 
 
+def _stage_preset(
+    preset: str | TrainPreset, stage: str, n_densities: int, *, buffer_size: int | None,
+    episode_steps: int | None, envs_per_density: int | None,
+) -> TrainPreset:
+    """The preset of one run: the stage's fields, the run's overrides, and the environments
+    per density (the preset's ``envs`` split over the densities unless it names them)."""
+    p = get_preset(preset).for_stage(stage)
+    if buffer_size is not None:
+        p = p.replace(buffer_size=int(buffer_size))
+    if episode_steps is not None:
+        p = p.replace(episode_steps=int(episode_steps))
+    if envs_per_density is not None:
+        p = p.replace(envs_per_density=int(envs_per_density))
+    if p.envs_per_density is None:
+        p = p.replace(envs_per_density=max(1, p.envs // n_densities))
+    return p
+
+
+def _networks_held(p: TrainPreset, start: dict[str, Any] | None, resume: Any) -> TrainPreset:
+    """The preset with the network variant and critic count that a resumed checkpoint holds
+    (they win over the preset's, with a note on stderr)."""
+    import sys
+
+    if start is None:
+        return p
+    if network_variant(start) != p.network:
+        print(f"mivecc train: {resume} holds {network_variant(start)!r} networks: continuing "
+              f"with those (the preset names {p.network!r})", file=sys.stderr)
+        p = p.replace(network=network_variant(start))
+    held = critic_members_in(start["critic"])
+    if held != p.critic_members:
+        print(f"mivecc train: {resume} holds {held} critic(s): continuing with those (the "
+              f"preset names {p.critic_members})", file=sys.stderr)
+        p = p.replace(critic_members=held)
+    return p
+
+
+def _actor_critic(
+    p: TrainPreset, group: str, start: dict[str, Any] | None, resume: Any,
+) -> tuple[TensorDictModule, TensorDictModule, bool]:
+    """The trained actor and critic, and whether ``start`` is a warm start (a policy-only
+    export: its weights are loaded here; a full checkpoint is loaded into the learner)."""
+    actor = make_actor(group, group, variant=p.network)
+    if p.actor_init_action is not None and start is None:  # a resumed run keeps its weights
+        actor.module.start_near(p.actor_init_action)
+    critic = make_critic(group, group, variant=p.network, members=p.critic_members)
+    warm = start is not None and "loss" not in start
+    if warm:
+        try:
+            actor.module.load_state_dict(start["actor"])
+            critic.module.load_state_dict(start["critic"])
+        except (RuntimeError, KeyError) as exc:
+            raise CheckpointError(f"{resume}: weights do not fit the {group} networks") from exc
+    return actor, critic, warm
+
+
+def _frozen_edge(
+    stage: str, edge_checkpoint: str | Path | None,
+) -> tuple[TensorDictModule | None, str | None]:
+    """Stage II: the frozen stage-I edge actor and its checkpoint's path (default: the
+    shipped edge); stage I: none."""
+    if stage != "cloud":
+        return None, None
+    if edge_checkpoint is None:
+        from mivecc_agents.policies import pretrained_path
+
+        edge_checkpoint = pretrained_path("edge")
+        if edge_checkpoint is None:
+            raise TrainingError(
+                "stage 'cloud' needs a stage-I edge checkpoint (edge_checkpoint=...)"
+            )
+    return load_frozen_edge_actor(edge_checkpoint), str(edge_checkpoint)
+
+
+def _make_learner(
+    actor: TensorDictModule, critic: TensorDictModule, p: TrainPreset, group: str,
+    device: torch.device, progress: Callable[[], float],
+) -> tuple[DDPGLearner, Callable[[], None]]:
+    """The learner on ``device`` (TD3: with its second critic) and the function copying its
+    actor's weights into ``actor``, which acts in the envs on the CPU."""
+    learn_actor, learn_critic, sync_actor = _learner_networks(actor, critic, device)
+    twin = (make_critic(group, group, variant=p.network).to(device)
+            if p.algorithm == "td3" else None)  # TD3's second critic, its own initialisation
+    learner = DDPGLearner(learn_actor, learn_critic, group, p, progress=progress, twin=twin)
+    return learner, sync_actor
+
+
+def iteration_frames(
+    frames_per_batch: int, remaining: int, n_envs: int, workers: int, cloud_period: int,
+) -> int:
+    """Frames that all collector workers together collect per iteration: whole steps of every
+    worker's ``n_envs`` environments, the preset's ``frames_per_batch`` steps per environment
+    (fewer if the ``remaining`` frames need fewer) shared by the workers, and whole cloud
+    decision blocks of ``cloud_period`` steps per worker."""
+    n_workers = max(1, workers)
+    steps = -(-max(1, min(frames_per_batch, -(-remaining // n_envs))) // n_workers)
+    if cloud_period > 1:  # whole decision blocks per batch (cloud_macro_transitions)
+        steps = cloud_period * max(1, steps // cloud_period)
+    return n_workers * n_envs * steps
+
+
+def _replay_buffer(
+    p: TrainPreset, probe: Any, policy: TensorDictSequential, keys: list, device: torch.device,
+) -> tuple[Any, int, int]:
+    """The replay buffer on ``device``, sized on purpose: the preset's ``buffer_size``
+    transitions unless they would take more than ``buffer_memory_mb`` (a transition's bytes
+    measured on one step of ``probe``, which is closed here). Returns ``(buffer, capacity,
+    bytes per transition)``."""
+    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+
+    with torch.no_grad():
+        sample = probe.rollout(1, policy)
+    probe.close()
+    per_transition = sum(
+        t.numel() * t.element_size() for t in sample.select(*keys).reshape(-1)[0].values(True, True)
+    )
+    cap_mem = int(p.buffer_memory_mb * 2**20 // max(per_transition, 1))
+    capacity = max(p.batch_size, min(p.buffer_size, cap_mem))
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device),
+                                    batch_size=p.batch_size)
+    return buffer, capacity, per_transition
+
+
+def _transitions(
+    data: TensorDictBase, group: str, keys: list, p: TrainPreset, cloud_period: int,
+) -> TensorDictBase:
+    """The replay buffer's transitions (flat, only ``keys``) from one collected batch: one
+    per decision of a cloud deciding every ``cloud_period`` steps, the rewards shaped by the
+    preset's ``reward_shaping`` (a new reward tensor: ``data`` keeps the raw one)."""
+    shaping = p.reward_shaping == "potential"
+    collect_keys = keys + potential_keys(group) if shaping else keys
+    if cloud_period > 1:
+        batch = cloud_macro_transitions(data, cloud_period, collect_keys)
+    else:
+        batch = data.select(*collect_keys)
+    if shaping:
+        batch = shape_rewards(batch, group, p.gamma)
+    return batch.select(*keys).reshape(-1)
+
+
+class _RunCheckpoints:
+    """A run's checkpoint (``<stage>.pt``), with the run's metadata, and the best policy of
+    the periodic evaluation (``<stage>_best.pt``)."""
+
+    def __init__(self, out_dir: Path, stage: str, meta: dict[str, Any], actor: TensorDictModule,
+                 learner: DDPGLearner, state: dict[str, int]) -> None:
+        self.path = out_dir / f"{stage}.pt"
+        self.best_path = out_dir / f"{stage}_best.pt"
+        self.meta, self.actor, self.learner, self.state = meta, actor, learner, state
+
+    def save(self, metrics: dict[str, Any], path: Path | None = None, slim: bool = False) -> Path:
+        """Write the checkpoint (``path``: elsewhere); ``slim``: without the optimiser and
+        target copies (it loads with ``load_policy`` but cannot be resumed)."""
+        return save_checkpoint(
+            self.path if path is None else path,
+            {
+                **self.meta,
+                "actor": self.actor.module.state_dict(),
+                "critic": _on_cpu(self.learner.critic_state_dict()),
+                **({} if slim else _on_cpu(self.learner.state_dict())),
+                "frames": self.state["frames"],
+                "updates": self.state["updates"],
+                "metrics": {**metrics, "iteration": self.state["iteration"]},
+            },
+        )
+
+
+class _EvaluationSchedule:
+    """The periodic evaluation of a run (``evaluate`` None: off): due every
+    ``eval_every_frames``; the best policy so far, by ``eval_select``, saved slim."""
+
+    def __init__(self, evaluate: Any, p: TrainPreset, checkpoints: _RunCheckpoints,
+                 state: dict[str, int], continuing: bool) -> None:
+        self.evaluate, self.p, self.checkpoints, self.state = evaluate, p, checkpoints, state
+        self.next_eval, self.last_eval = state["frames"], None
+        self.best_score = (_best_score(checkpoints.best_path, p.eval_select) if continuing
+                           else -math.inf)
+
+    def maybe(self, bar: Any, progress: bool, final: bool = False) -> None:
+        """Evaluate when due; ``final``: unless the current weights were just evaluated."""
+        frames = self.state["frames"]
+        due = frames != self.last_eval if final else frames >= self.next_eval
+        if self.evaluate is None or not due:
+            return
+        self.last_eval = frames
+        scores = self.evaluate(self.checkpoints.actor.module, frames, self.state["updates"])
+        score = scores.score(self.p.eval_select)
+        if score > self.best_score:  # NaN (no baseline velocity) never counts as better
+            self.best_score = score
+            self.checkpoints.save({"eval_gain_pct": scores.mean_gain_pct,
+                                   "eval_min_ceiling_share_pct": scores.min_ceiling_share_pct,
+                                   "eval_select": self.p.eval_select, "eval_score": score},
+                                  self.checkpoints.best_path, slim=True)
+        if progress:
+            import sys
+
+            bar.write(f"eval at {frames} frames: {self.evaluate.scheme} gain "
+                      f"{scores.mean_gain_pct:+.2f} %, at least "
+                      f"{scores.min_ceiling_share_pct:.0f} % of the +3 ceiling's", file=sys.stderr)
+        self.next_eval = frames + self.p.eval_every_frames
+
+
 def _train(
     stage: str = "edge",
     preset: str | TrainPreset = DEFAULT_PRESET,
@@ -661,22 +562,15 @@ def _train(
     Returns:
         Path of the checkpoint written at the end.
     """
-    from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
     from tqdm.auto import tqdm
 
     if stage not in STAGES:
         raise TrainingError(f"unknown stage {stage!r}; expected 'edge' or 'cloud'")
     device = learner_device(device)
-    p = get_preset(preset).for_stage(stage)
-    if buffer_size is not None:
-        p = p.replace(buffer_size=int(buffer_size))
-    if episode_steps is not None:
-        p = p.replace(episode_steps=int(episode_steps))
-    if envs_per_density is not None:
-        p = p.replace(envs_per_density=int(envs_per_density))
-    group = STAGES[stage]["group"]
-    scheme = STAGES[stage]["scheme"]
-    dens = _densities(densities)
+    group, scheme = STAGES[stage]["group"], STAGES[stage]["scheme"]
+    dens = density_list(densities)
+    p = _stage_preset(preset, stage, len(dens), buffer_size=buffer_size,
+                      episode_steps=episode_steps, envs_per_density=envs_per_density)
     overrides = {
         **dict(p.env_overrides),
         **(config_overrides or {}),
@@ -684,8 +578,6 @@ def _train(
         "cols": cols,
         "max_steps": p.episode_steps,
     }
-    if p.envs_per_density is None:
-        p = p.replace(envs_per_density=max(1, p.envs // len(dens)))
     env_options = _env_options(p)
     env_fn, env_density = env_factory(
         backend, dens, overrides, scheme, p.envs_per_density, seed, env_options
@@ -696,55 +588,14 @@ def _train(
     total_frames = int(frames) if frames is not None else 50 * p.episode_steps * len(dens)
     torch.manual_seed(seed)
 
-    # --- networks, learner ------------------------------------------------------------------
+    # --- networks, learner (in this order: each draws its initial weights from torch) ------
     start = _load_start(resume, stage, group) if resume is not None else None
-    if start is not None and network_variant(start) != p.network:
-        import sys
-
-        print(f"mivecc train: {resume} holds {network_variant(start)!r} networks: continuing "
-              f"with those (the preset names {p.network!r})", file=sys.stderr)
-        p = p.replace(network=network_variant(start))
-    held = critic_members_in(start["critic"]) if start is not None else p.critic_members
-    if held != p.critic_members:
-        import sys
-
-        print(f"mivecc train: {resume} holds {held} critic(s): continuing with those (the "
-              f"preset names {p.critic_members})", file=sys.stderr)
-        p = p.replace(critic_members=held)
-    actor = make_actor(group, group, variant=p.network)
-    if p.actor_init_action is not None and start is None:  # a resumed run keeps its weights
-        actor.module.start_near(p.actor_init_action)
-    critic = make_critic(group, group, variant=p.network, members=p.critic_members)
-    warm = start is not None and "loss" not in start
-    if warm:
-        try:
-            actor.module.load_state_dict(start["actor"])
-            critic.module.load_state_dict(start["critic"])
-        except (RuntimeError, KeyError) as exc:
-            raise CheckpointError(f"{resume}: weights do not fit the {group} networks") from exc
-    frozen_edge = None
-    edge_ckpt_path = None
-    if stage == "cloud":
-        if edge_checkpoint is None:
-            from mivecc_agents.policies import pretrained_path
-
-            edge_checkpoint = pretrained_path("edge")
-            if edge_checkpoint is None:
-                raise TrainingError(
-                    "stage 'cloud' needs a stage-I edge checkpoint (edge_checkpoint=...)"
-                )
-        edge_ckpt_path = str(edge_checkpoint)
-        frozen_edge = load_frozen_edge_actor(edge_checkpoint)
-
+    p = _networks_held(p, start, resume)
+    actor, critic, warm = _actor_critic(p, group, start, resume)
+    frozen_edge, edge_ckpt_path = _frozen_edge(stage, edge_checkpoint)
     state = {"frames": 0, "updates": 0, "iteration": 0}
-    # the learner's networks on ``device``; ``actor`` keeps acting in the envs on the CPU
-    learn_actor, learn_critic, sync_actor = _learner_networks(actor, critic, device)
-    twin = (make_critic(group, group, variant=p.network).to(device)
-            if p.algorithm == "td3" else None)  # TD3's second critic, its own initialisation
-    learner = DDPGLearner(
-        learn_actor, learn_critic, group, p,
-        progress=lambda: state["frames"] / max(total_frames, 1), twin=twin,
-    )
+    learner, sync_actor = _make_learner(actor, critic, p, group, device,
+                                        lambda: state["frames"] / max(total_frames, 1))
     if start is not None and not warm:
         learner.load_state_dict(start)
         sync_actor()
@@ -755,12 +606,11 @@ def _train(
         )
         learner.updates = state["updates"]
 
-    # --- exploration policy, env, collector ----------------------------------------------
+    # --- exploration policy, frames per iteration, replay buffer ---------------------------
     probe = env_fn()
-    action_spec = probe.full_action_spec[(group, "action")].clone()
     noise = make_exploration(
         p.exploration,
-        action_spec,
+        probe.full_action_spec[(group, "action")].clone(),
         p.sigma_init,
         p.sigma_end,
         p.sigma_anneal_fraction * total_frames,
@@ -771,59 +621,16 @@ def _train(
         noise.step(state["frames"])
     policy = make_policy(stage, actor, noise, frozen_edge, groups=env_groups(probe))
     remaining = max(0, total_frames - state["frames"])
-    # steps of each env per iteration: the preset's, fewer if the run is shorter than that;
-    # several collector workers (each with its own n_envs environments) share them
-    n_workers = max(1, workers)
-    steps = -(-max(1, min(p.frames_per_batch, -(-remaining // n_envs))) // n_workers)
     cloud_period = _cloud_period(stage, overrides, dens[0])
-    if cloud_period > 1:  # whole decision blocks per batch (cloud_macro_transitions)
-        steps = cloud_period * max(1, steps // cloud_period)
-    fpb = n_workers * n_envs * steps  # what the collector(s) really collect per iteration
-
-    # --- replay buffer, sized on purpose ---------------------------------------------------
+    fpb = iteration_frames(p.frames_per_batch, remaining, n_envs, workers, cloud_period)
     keys = _buffer_keys(group)
-    shaping = p.reward_shaping == "potential"
-    collect_keys = keys + potential_keys(group) if shaping else keys
-    with torch.no_grad():
-        sample = probe.rollout(1, policy)
-    probe.close()
-    per_transition = sum(
-        t.numel() * t.element_size() for t in sample.select(*keys).reshape(-1)[0].values(True, True)
-    )
-    cap_mem = int(p.buffer_memory_mb * 2**20 // max(per_transition, 1))
-    capacity = max(p.batch_size, min(p.buffer_size, cap_mem))
-    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(capacity, device=device),
-                                    batch_size=p.batch_size)
+    buffer, capacity, per_transition = _replay_buffer(p, probe, policy, keys, device)
 
+    # --- log, checkpoints, periodic evaluation -------------------------------------------
     csv_path = out_dir / "train_log.csv"
-    fields = [
-        "iteration",
-        "frames",
-        "episodes",
-        "reward_mean",
-        "episode_reward",
-        "avg_velocity_mps",
-        *[f"avg_velocity_mps_d{_fmt_density(d)}" for d in dens],
-        *[f"episode_velocity_mps_d{_fmt_density(d)}" for d in dens],
-        "collisions",
-        "critic_loss",
-        "actor_loss",
-        "q_mean",
-        "lr_actor",
-        "lr_critic",
-        "sigma",
-        "actor_saturated",
-        "updates",
-        "fps_collect",
-        "fps_optim",
-        "buffer",
-        "wall_s",
-    ]
     append_logs = resume is not None and not warm and csv_path.exists()  # continuing a run
-    fh, writer = open_log(csv_path, fields, append=append_logs)
-    tb = _tensorboard_writer(out_dir)
-
-    ckpt_path = out_dir / f"{stage}.pt"
+    fh, writer = open_log(csv_path, log_fields(dens), append=append_logs)
+    tb = tensorboard_writer(out_dir)
     meta = {
         "stage": stage,
         "kind": group,
@@ -843,51 +650,13 @@ def _train(
             "learner_device": str(device),
         },
     }
+    checkpoints = _RunCheckpoints(out_dir, stage, meta, actor, learner, state)
+    evaluations = _EvaluationSchedule(
+        _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {}, out_dir,
+                             edge_ckpt_path, append=append_logs),
+        p, checkpoints, state, continuing=append_logs)
 
-    def _save(metrics: dict[str, Any], path: Path = ckpt_path, slim: bool = False) -> Path:
-        """The run's checkpoint; ``slim``: without the optimiser and target copies (it loads
-        with ``load_policy`` but cannot be resumed)."""
-        return save_checkpoint(
-            path,
-            {
-                **meta,
-                "actor": actor.module.state_dict(),
-                "critic": _on_cpu(learner.critic_state_dict()),
-                **({} if slim else _on_cpu(learner.state_dict())),
-                "frames": state["frames"],
-                "updates": state["updates"],
-                "metrics": {**metrics, "iteration": state["iteration"]},
-            },
-        )
-
-    evaluate = _periodic_evaluation(p, stage, rows, cols, dens, config_overrides or {},
-                                    out_dir, edge_ckpt_path, append=append_logs)
-    next_eval, last_eval = state["frames"], None
-    best_path = out_dir / f"{stage}_best.pt"  # the policy of the best evaluation so far
-    best_score = _best_score(best_path, p.eval_select) if append_logs else -math.inf
-
-    def _maybe_evaluate(final: bool = False) -> None:
-        """Evaluate when due; ``final``: unless the current weights were just evaluated."""
-        nonlocal next_eval, last_eval, best_score
-        due = state["frames"] != last_eval if final else state["frames"] >= next_eval
-        if evaluate is None or not due:
-            return
-        last_eval = state["frames"]
-        scores = evaluate(actor.module, state["frames"], state["updates"])
-        score = scores.score(p.eval_select)
-        if score > best_score:  # NaN (no baseline velocity) never counts as better
-            best_score = score
-            _save({"eval_gain_pct": scores.mean_gain_pct,
-                   "eval_min_ceiling_share_pct": scores.min_ceiling_share_pct,
-                   "eval_select": p.eval_select, "eval_score": score}, best_path, slim=True)
-        if progress:
-            import sys
-
-            bar.write(f"eval at {state['frames']} frames: {evaluate.scheme} gain "
-                      f"{scores.mean_gain_pct:+.2f} %, at least "
-                      f"{scores.min_ceiling_share_pct:.0f} % of the +3 ceiling's", file=sys.stderr)
-        next_eval = state["frames"] + p.eval_every_frames
-
+    # --- collect and learn ---------------------------------------------------------------
     metrics: dict[str, float] = {}
     episodes = 0
     t0 = time.perf_counter()
@@ -902,11 +671,11 @@ def _train(
     with stop:
         collector = None
         try:
-            _maybe_evaluate()
+            evaluations.maybe(bar, progress)
             if remaining > 0 and not stop.requested:
-                collector = _make_collector(
-                    _worker_env_fns(backend, dens, overrides, scheme, p, seed, state, workers,
-                                    env_options),
+                collector = make_collector(
+                    worker_env_fns(backend, dens, overrides, scheme, p, seed, state, workers,
+                                   env_options),
                     policy, fpb, remaining, workers, ray_address,
                 )
                 if backend == "pettingzoo":  # the native envs are seeded by their factories
@@ -917,13 +686,7 @@ def _train(
                     n = data.numel()
                     state["frames"] += n
                     state["iteration"] += 1
-                    if cloud_period > 1:
-                        batch = cloud_macro_transitions(data, cloud_period, collect_keys)
-                    else:
-                        batch = data.select(*collect_keys)
-                    if shaping:  # sets a new reward tensor: the logs below keep the raw one
-                        batch = shape_rewards(batch, group, p.gamma)
-                    buffer.extend(batch.select(*keys).reshape(-1))
+                    buffer.extend(_transitions(data, group, keys, p, cloud_period))
                     if noise is not None:
                         noise.step(n)
                     stats = UpdateStats()
@@ -934,7 +697,7 @@ def _train(
                         sync_actor()
                     if workers > 1 or ray_address is not None:
                         collector.update_policy_weights_()
-                    metrics = _metrics(
+                    metrics = log_row(
                         data,
                         group=group,
                         densities=dens,
@@ -955,7 +718,7 @@ def _train(
                     episodes = int(metrics["episodes"])
                     writer.writerow(metrics)
                     fh.flush()
-                    _log_tensorboard(tb, stage, metrics)
+                    log_tensorboard(tb, stage, metrics)
                     bar.update(n)
                     bar.set_postfix(
                         v=f"{metrics['avg_velocity_mps']:.2f}",
@@ -964,11 +727,11 @@ def _train(
                     if stop.requested:
                         break
                     if save_every and state["iteration"] % save_every == 0:
-                        _save(metrics)
-                    _maybe_evaluate()
+                        checkpoints.save(metrics)
+                    evaluations.maybe(bar, progress)
                     t_last = time.perf_counter()
             if not stop.requested:
-                _maybe_evaluate(final=True)
+                evaluations.maybe(bar, progress, final=True)
         finally:
             if collector is not None:
                 with contextlib.suppress(Exception):  # an interrupted worker may be gone
@@ -977,7 +740,7 @@ def _train(
             fh.close()
             if tb is not None:
                 tb.close()
-        path = _save(metrics)
+        path = checkpoints.save(metrics)
         plot_learning_curve(csv_path, out_dir / "learning_curve.png")
     if stop.requested:
         raise TrainingInterrupted(path, state["frames"])
@@ -1029,164 +792,10 @@ def _env_options(p: TrainPreset) -> dict[str, Any]:
     return {"continuous": p.continuous, "raw_edge_period": p.raw_edge_period}
 
 
-def _tensorboard_writer(out_dir: Path) -> Any:
-    """A TensorBoard ``SummaryWriter`` logging to ``out_dir/tb`` if tensorboard is installed."""
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:  # tensorboard is optional: the CSV log is always written
-        return None
-    return SummaryWriter(log_dir=str(out_dir / "tb"))
-
-
-def _worker_env_fns(
-    backend: str,
-    dens: list[float],
-    overrides: dict[str, Any],
-    scheme: str,
-    p: TrainPreset,
-    seed: int,
-    state: dict[str, int],
-    workers: int,
-    env_options: dict[str, Any] | None = None,
-) -> list[Callable]:
-    """One env factory per collector worker; native envs get distinct seeds per worker (and
-    per resumed run: the frame count is added)."""
-    n = max(1, workers)
-    n_envs = p.envs_per_density * len(dens)
-    base = seed + state["frames"]
-    return [
-        env_factory(backend, dens, overrides, scheme, p.envs_per_density, base + w * n_envs,
-                    env_options)[0]
-        for w in range(n)
-    ]
-
-
-def _log_tensorboard(tb: Any, stage: str, metrics: dict[str, float]) -> None:
-    """Every numeric metric as a TensorBoard scalar at the current frame count."""
-    if tb is None:
-        return
-    for key, value in metrics.items():
-        if isinstance(value, int | float) and key not in ("iteration", "frames"):
-            tb.add_scalar(f"{stage}/{key}", value, int(metrics["frames"]))
-
-
 def _config_dict(overrides: dict[str, Any], scheme: str, dens: list[float]) -> dict[str, Any]:
     from mivecc_env.config import from_overrides
 
     return from_overrides(None, **{**overrides, "scheme": scheme, "density": dens[0]}).to_dict()
-
-
-def _summary_entry(nxt: TensorDictBase, group: str, key: str) -> torch.Tensor:
-    """An episode-summary entry ``(..., n_agents)``: from the group's infos, else from the
-    cloud agent's (the PettingZoo env puts the summary there only), else NaN."""
-    for g in (group, "cloud"):
-        value = nxt.get((g, "info", key), None)
-        if value is not None:
-            return value
-    shape = nxt[group, "reward"].shape[:-1]
-    return torch.full(shape, math.nan)
-
-
-def open_log(path: Path, fields: Sequence[str], append: bool) -> tuple[Any, csv.DictWriter]:
-    """Open a CSV log for writing rows of ``fields``: a new file with its header, or (with
-    ``append`` and an existing file) the file to continue. A file written with other columns
-    (an earlier version's run being resumed) is first rewritten with ``fields`` as its header,
-    its rows kept (blank where they lack a column; columns no longer written are dropped)."""
-    if append and path.exists():
-        with path.open(newline="") as fh:
-            reader = csv.DictReader(fh)
-            old_fields, rows = reader.fieldnames or [], list(reader)
-        if list(old_fields) != list(fields):
-            with path.open("w", newline="") as fh:
-                rewrite = csv.DictWriter(fh, fieldnames=list(fields), restval="",
-                                         extrasaction="ignore")
-                rewrite.writeheader()
-                rewrite.writerows(rows)
-        fh = path.open("a", newline="")
-        return fh, csv.DictWriter(fh, fieldnames=list(fields))
-    fh = path.open("w", newline="")
-    writer = csv.DictWriter(fh, fieldnames=list(fields))
-    writer.writeheader()
-    fh.flush()
-    return fh, writer
-
-
-def _metrics(
-    data: TensorDictBase,
-    *,
-    group: str,
-    densities: list[float],
-    env_density: list[int],
-    state: dict[str, int],
-    episodes: int,
-    stats: UpdateStats,
-    lr: tuple[float, float],
-    noise: Any,
-    frames_in_batch: int,
-    collect_s: float,
-    buffer_len: int,
-    wall_s: float,
-    batch_size: int,
-) -> dict[str, float]:
-    """One CSV row. ``data`` has batch dims ``(n_envs, T)`` (or flattened by workers);
-    ``env_density[b]`` is the density index of environment ``b``."""
-    nxt = data["next"]
-    reward = nxt[group, "reward"]
-    done = nxt["done"].reshape(-1)
-    vel = _summary_entry(nxt, group, "avg_travel_velocity_mps")  # (..., n_agents)
-    vel = torch.where(_summary_entry(nxt, group, "throughput") > 0, vel, math.nan)  # none exited
-    coll = _summary_entry(nxt, group, "collisions")
-    row: dict[str, float] = {
-        "iteration": state["iteration"],
-        "frames": state["frames"],
-        "episodes": episodes + int(done.sum()),
-        "reward_mean": float(reward.mean()),
-        "episode_reward": math.nan,
-        "collisions": float(coll.reshape(-1, coll.shape[-1])[:, 0].max()),
-        "critic_loss": stats.critic_loss,
-        "actor_loss": stats.actor_loss,
-        "q_mean": stats.q_mean,
-        "lr_actor": lr[0],
-        "lr_critic": lr[1],
-        "sigma": float(noise.sigma) if noise is not None else 0.0,
-        "updates": stats.n_updates,
-        "fps_collect": frames_in_batch / max(collect_s, 1e-9),
-        "fps_optim": (
-            stats.n_updates * batch_size / max(stats.seconds, 1e-9) if stats.n_updates else math.nan
-        ),
-        "buffer": buffer_len,
-        "wall_s": wall_s,
-    }
-    # per density: the running episode value at the last step of the batch (mean over the
-    # density's environments), and the final value of the episodes that ended in this batch
-    # (NaN if none ended)
-    n_envs = len(env_density)
-    if vel.ndim >= 3 and vel.shape[0] == n_envs:
-        per_env = vel[..., 0]  # (n_envs, T)
-        done_e = nxt["done"].reshape(per_env.shape)
-        owner = torch.as_tensor(env_density)
-        for i, d in enumerate(densities):
-            sel = owner == i
-            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(per_env[sel, -1].nanmean())
-            ended = per_env[sel][done_e[sel]]
-            row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
-                float(ended.nanmean()) if ended.numel() else math.nan
-            )
-    else:  # layout unknown (e.g. flattened by collector workers): one value for all densities
-        flat = vel.reshape(-1, vel.shape[-1])[:, 0]
-        ended = flat[done]
-        for d in densities:
-            row[f"avg_velocity_mps_d{_fmt_density(d)}"] = float(flat[-1])
-            row[f"episode_velocity_mps_d{_fmt_density(d)}"] = (
-                float(ended.nanmean()) if ended.numel() else math.nan
-            )
-    per_density = [row[f"avg_velocity_mps_d{_fmt_density(d)}"] for d in densities]
-    row["avg_velocity_mps"] = sum(per_density) / len(densities)
-    if done.any():
-        ep = nxt[group, "episode_reward"]  # (..., n_agents, 1), summed by RewardSum
-        ep = ep.reshape(done.shape[0], -1)[done]
-        row["episode_reward"] = float(ep.mean())
-    return row
 
 
 # --------------------------------------------------------------------------------------------

@@ -88,13 +88,10 @@ def test_ray_collector_two_workers_sync_weights_and_noise(ray_mod):
     update_policy_weights_() (called by train after each update) reaches both of them."""
     from torchrl.modules import AdditiveGaussianModule
 
+    from mivecc_agents.collectors import make_collector
     from mivecc_agents.networks import make_actor
-    from mivecc_agents.training import (
-        _make_batched_env,
-        _make_collector,
-        make_env,
-        make_policy,
-    )
+    from mivecc_agents.train_envs import _make_batched_env
+    from mivecc_agents.training import make_env, make_policy
 
     overrides = {"rows": 1, "cols": 1, "max_steps": 120}
     probe = make_env({**overrides, "density": 1500.0}, "EE")
@@ -110,7 +107,7 @@ def test_ray_collector_two_workers_sync_weights_and_noise(ray_mod):
     )
     policy = make_policy("edge", actor, noise)
     env_fn = partial(_make_batched_env, [1500.0, 2100.0], overrides, "EE")
-    collector = _make_collector(env_fn, policy, 100, 200, 2, "local")
+    collector = make_collector(env_fn, policy, 100, 200, 2, "local")
     try:
         assert len(collector.remote_collectors) == 2
         for data in collector:

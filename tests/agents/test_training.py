@@ -384,8 +384,9 @@ def test_replay_buffer_keeps_each_batch_of_the_reused_collector_buffer() -> None
     from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
     from torchrl.modules import AdditiveGaussianModule
 
+    from mivecc_agents.collectors import make_collector
     from mivecc_agents.networks import make_actor
-    from mivecc_agents.training import _make_collector, env_factory, env_groups, make_policy
+    from mivecc_agents.training import env_factory, env_groups, make_policy
 
     overrides = {"rows": 1, "cols": 1, "max_steps": 1000}
     env_fn, _ = env_factory("native", [1500.0, 2100.0], overrides, "EE", seed=0)
@@ -395,7 +396,7 @@ def test_replay_buffer_keeps_each_batch_of_the_reused_collector_buffer() -> None
     probe.close()
     noise = AdditiveGaussianModule(spec=spec, action_key=("edge", "action"))
     policy = make_policy("edge", make_actor("edge", "edge"), noise, groups=groups)
-    collector = _make_collector(env_fn, policy, 400, -1, 1, None)  # 2 envs x 200 steps
+    collector = make_collector(env_fn, policy, 400, -1, 1, None)  # 2 envs x 200 steps
     buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(800), batch_size=8)
     kept, yielded = [], []
     try:
@@ -426,7 +427,7 @@ def test_every_collector_keeps_the_env_as_given(monkeypatch, workers, ray_addres
     import torchrl.collectors
     import torchrl.collectors.distributed
 
-    from mivecc_agents.training import _make_collector
+    from mivecc_agents.collectors import make_collector
 
     made = {}
 
@@ -441,7 +442,7 @@ def test_every_collector_keeps_the_env_as_given(monkeypatch, workers, ray_addres
         monkeypatch.setattr(torchrl.collectors, name, Fake)
     monkeypatch.setattr(torchrl.collectors.distributed, "RayCollector", Fake)
     monkeypatch.setitem(sys.modules, "ray", types.ModuleType("ray"))  # ray need not be installed
-    _make_collector(lambda: None, None, 100, 200, workers, ray_address)
+    make_collector(lambda: None, None, 100, 200, workers, ray_address)
     kwargs = made["kwargs"]
     if ray_address is not None:
         from mivecc_agents.ray_worker import RayWorkerCollector
@@ -488,3 +489,25 @@ def test_actor_init_action_starts_the_trained_actor_there(tmp_path: Path) -> Non
     with pytest.raises(ValueError, match=r"cannot use 'nan' \(expected a finite number or none\)"):
         preset_with("released", {"actor_init_action": "nan"})
     assert preset_with("released", {"actor_init_action": "none"}).actor_init_action is None
+
+
+@pytest.mark.parametrize(
+    ("frames_per_batch", "remaining", "n_envs", "workers", "cloud_period", "expected"),
+    [
+        (100, 10**6, 48, 1, 1, 4800),  # the preset's 100 steps of each of 48 environments
+        (100, 150, 2, 1, 1, 150),  # a short run: 75 steps of 2 environments
+        (100, 151, 2, 1, 1, 152),  # whole steps: 76 steps, one frame more than asked
+        (100, 10**6, 2, 2, 1, 200),  # two workers share the 100 steps: 50 steps each
+        (100, 10**6, 3, 1, 10, 300),  # whole decision blocks of 10 steps
+        (100, 5, 2, 1, 10, 20),  # at least one block per worker, even for 5 frames
+        (100, 10**6, 2, 0, 1, 200),  # workers < 1 count as one
+    ],
+)
+def test_iteration_frames_are_whole_steps_of_every_worker(
+    frames_per_batch: int, remaining: int, n_envs: int, workers: int, cloud_period: int,
+    expected: int,
+) -> None:
+    from mivecc_agents.training import iteration_frames
+
+    assert iteration_frames(frames_per_batch, remaining, n_envs, workers,
+                            cloud_period) == expected
