@@ -155,6 +155,92 @@ def _check_args(
             )
 
 
+def _coordinator_actions(
+    scheme: str, needed: Sequence[str], policies: Mapping[str, Policy], warn: bool,
+) -> str:
+    """``"unused"`` (the scheme has no coordinator), ``"zero"`` (one it uses has no policy:
+    it acts with zeros, said on stderr if ``warn``) or ``"policy"``."""
+    missing = [kind for kind in needed if kind not in policies]
+    if missing and warn:
+        print(ZERO_ACTION_WARNING.format(scheme=scheme, missing=" and ".join(missing)),
+              file=sys.stderr)
+    return "unused" if not needed else ("zero" if missing else "policy")
+
+
+def _progress_bar(progress: bool, steps: int, desc: str) -> Any:
+    """A tqdm bar of ``steps`` env steps on stderr, or None without ``progress``."""
+    if not progress:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=int(steps), desc=desc, unit="step", file=sys.stderr, mininterval=0.5,
+                leave=False)
+
+
+def _close_bar(bar: Any, steps: int) -> None:
+    """Complete the bar (it is updated in chunks of steps) and close it."""
+    if bar is not None:
+        bar.update(int(steps) - bar.n)
+        bar.close()
+
+
+def _result(
+    summary: Mapping[str, float], cfg: Any, scheme: str, steps: int, wall: float,
+    env_steps: int, density: float, seed: int, coordinator_actions: str, **extra: Any,
+) -> dict[str, Any]:
+    """One run's result: its episode summary (NaN where nothing was measured yet), the run's
+    settings and speed (``env_steps`` per wall-clock second), and the config readings."""
+    result: dict[str, Any] = mark_no_data(dict(summary), cfg)
+    result.update(
+        steps=int(steps),
+        steps_per_s=float(env_steps / wall) if wall > 0 else math.inf,
+        wall_s=float(wall),
+        **extra,
+        scheme=scheme,
+        rows=int(cfg.rows),
+        cols=int(cfg.cols),
+        density=density,
+        seed=seed,
+        coordinator_actions=coordinator_actions,
+    )
+    for name in CONFIG_READINGS:
+        result[name] = getattr(cfg, name)
+    return result
+
+
+def batch_actions(
+    policy: Policy | None, obs: np.ndarray, mask: np.ndarray, a_max: float, stacked: bool,
+    envs: Sequence[int] | None = None,
+) -> np.ndarray:
+    """(B, n, K) float64 actions [m/s^2] of the environments ``envs`` (default: all; zeros
+    for the others, and for all without a ``policy``), clipped to ``a_max``: one call on all
+    of them stacked if ``stacked`` and ``envs`` is the whole batch, else one call per
+    environment (B = 1 shapes).
+
+    Args:
+        obs: (B, n, K, K, 3) graphs; mask: (B, n, K) real columns.
+    """
+    b = mask.shape[0]
+    envs = range(b) if envs is None else envs
+    out = np.zeros(mask.shape, np.float32)
+    if policy is not None:
+        if stacked and len(envs) == b:
+            rows = mask.reshape(-1, mask.shape[-1])
+            a = np.asarray(policy(obs.reshape(-1, *obs.shape[2:]), rows), dtype=np.float32)
+            if a.shape != rows.shape:
+                raise ValueError(f"policy returned shape {a.shape}, expected {rows.shape}")
+            out[:] = a.reshape(out.shape)
+        else:
+            for i in envs:
+                a = np.asarray(policy(obs[i], mask[i]), dtype=np.float32)
+                if a.shape != mask[i].shape:
+                    raise ValueError(
+                        f"policy returned shape {a.shape}, expected {mask[i].shape}")
+                out[i] = a
+        np.clip(out, -a_max, a_max, out=out)
+    return out.astype(np.float64)
+
+
 def evaluate_scheme(
     scheme: str,
     rows: int,
@@ -208,11 +294,7 @@ def evaluate_scheme(
     cfg = env.config
 
     needed = _needed_policies(cfg.scheme)
-    missing = [kind for kind in needed if kind not in policies]
-    if missing and warn:
-        print(ZERO_ACTION_WARNING.format(scheme=scheme, missing=" and ".join(missing)),
-              file=sys.stderr)
-    coordinator_actions = "unused" if not needed else ("zero" if missing else "policy")
+    coordinator_actions = _coordinator_actions(scheme, needed, policies, warn)
     edge_policy = policies.get("edge") if "edge" in needed else None
     cloud_policy = policies.get("cloud") if "cloud" in needed else None
 
@@ -238,12 +320,7 @@ def evaluate_scheme(
     obs, infos = env.reset(seed=int(seed))
     if step_hook is not None:
         step_hook(env, 0)
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=int(steps), desc=f"{scheme} {rows}x{cols} @{density:g}",
-                   unit="step", file=sys.stderr, mininterval=0.5, leave=False)
+    bar = _progress_bar(progress, steps, f"{scheme} {rows}x{cols} @{density:g}")
     step, update = env.step, (bar.update if bar is not None else None)
     uses_policy = edge_policy is not None or cloud_policy is not None
     chunk = 100
@@ -260,24 +337,10 @@ def evaluate_scheme(
         if update is not None and (i + 1) % chunk == 0:
             update(chunk)
     wall = time.perf_counter() - t0
-    if bar is not None:
-        bar.update(int(steps) - bar.n)
-        bar.close()
+    _close_bar(bar, steps)
 
-    result: dict[str, Any] = mark_no_data(env.summary(), cfg)  # NaN: nothing measured yet
-    result.update(
-        steps=int(steps),
-        steps_per_s=float(steps / wall) if wall > 0 else math.inf,
-        wall_s=float(wall),
-        scheme=scheme,
-        rows=int(cfg.rows),
-        cols=int(cfg.cols),
-        density=float(cfg.density_vplh),
-        seed=int(seed),
-        coordinator_actions=coordinator_actions,
-    )
-    for name in CONFIG_READINGS:
-        result[name] = getattr(cfg, name)
+    result = _result(env.summary(), cfg, scheme, steps, wall, steps, float(cfg.density_vplh),
+                     int(seed), coordinator_actions)
     env.close()
     return result
 
@@ -344,44 +407,12 @@ def evaluate_batch(
         rows=rows, cols=cols, density=dens[0], max_steps=int(steps), **overrides,
     )
     cfg = env.config
-    missing = [kind for kind in needed if kind not in policies]
-    if missing and warn:
-        print(ZERO_ACTION_WARNING.format(scheme=scheme, missing=" and ".join(missing)),
-              file=sys.stderr)
-    coordinator_actions = "unused" if not needed else ("zero" if missing else "policy")
+    coordinator_actions = _coordinator_actions(scheme, needed, policies, warn)
     a_max = cfg.a_max_mps2
     b = len(pairs)
 
-    def act(policy: Policy | None, obs: np.ndarray, mask: np.ndarray, stacked: bool,
-            envs: Sequence[int] = range(b)) -> np.ndarray:
-        """(B, n, K) float64 actions of the environments ``envs`` (zeros for the others):
-        one call on all of them stacked if ``stacked`` and ``envs`` is the whole batch, else
-        one call per environment (B = 1 shapes)."""
-        out = np.zeros(mask.shape, np.float32)
-        if policy is not None:
-            if stacked and len(envs) == b:
-                rows = mask.reshape(-1, mask.shape[-1])
-                a = np.asarray(policy(obs.reshape(-1, *obs.shape[2:]), rows), dtype=np.float32)
-                if a.shape != rows.shape:
-                    raise ValueError(f"policy returned shape {a.shape}, expected {rows.shape}")
-                out[:] = a.reshape(out.shape)
-            else:
-                for i in envs:
-                    a = np.asarray(policy(obs[i], mask[i]), dtype=np.float32)
-                    if a.shape != mask[i].shape:
-                        raise ValueError(
-                            f"policy returned shape {a.shape}, expected {mask[i].shape}")
-                    out[i] = a
-            np.clip(out, -a_max, a_max, out=out)
-        return out.astype(np.float64)
-
     step = env.reset(seed=[s for _, s in pairs])
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=int(steps), desc=f"{scheme} {rows}x{cols} x{b}", unit="step",
-                   file=sys.stderr, mininterval=0.5, leave=False)
+    bar = _progress_bar(progress, steps, f"{scheme} {rows}x{cols} x{b}")
     edge_policy, cloud_policy = policies.get("edge"), policies.get("cloud")
     # one call for the whole batch where it gives the per-environment calls' bits
     edge_stacked = stack_policies and "edge" in needed and stacking_is_exact(
@@ -394,15 +425,17 @@ def evaluate_batch(
     for i in range(int(steps)):
         edge = cloud = None
         if "edge" in needed:
-            edge = act(edge_policy, step.edge_obs, step.edge_mask, edge_stacked)
+            edge = batch_actions(edge_policy, step.edge_obs, step.edge_mask, a_max,
+                                 edge_stacked)
         if "cloud" in needed:
             # the env ignores the cloud action of an environment that does not decide on this
             # step (cloud_period > 1): its policy is not called there
             decides = env.cloud_decides
             k = env.k_cloud
-            cloud = act(cloud_policy, step.cloud_obs.reshape(b, n_cloud, k, k, 3),
-                        step.cloud_mask.reshape(b, n_cloud, k), cloud_stacked,
-                        np.flatnonzero(decides).tolist()).reshape(b, *env.cloud_action_shape)
+            cloud = batch_actions(cloud_policy, step.cloud_obs.reshape(b, n_cloud, k, k, 3),
+                                  step.cloud_mask.reshape(b, n_cloud, k), a_max, cloud_stacked,
+                                  np.flatnonzero(decides).tolist()
+                                  ).reshape(b, *env.cloud_action_shape)
         before, step = step, env.step(edge, cloud)
         if on_step is not None:
             on_step(before, edge, cloud if cloud is None or decides.all()
@@ -411,30 +444,14 @@ def evaluate_batch(
         if bar is not None and (i + 1) % chunk == 0:
             bar.update(chunk)
     wall = time.perf_counter() - t0
-    if bar is not None:
-        bar.update(int(steps) - bar.n)
-        bar.close()
+    _close_bar(bar, steps)
 
     summary = env.summary()
     results = []
     for j, (density, seed) in enumerate(pairs):
-        result: dict[str, Any] = mark_no_data({k: float(v[j]) for k, v in summary.items()},
-                                              cfg)
-        result.update(
-            steps=int(steps),
-            steps_per_s=float(b * steps / wall) if wall > 0 else math.inf,
-            wall_s=float(wall),
-            batch_size=b,
-            scheme=scheme,
-            rows=int(cfg.rows),
-            cols=int(cfg.cols),
-            density=density,
-            seed=seed,
-            coordinator_actions=coordinator_actions,
-        )
-        for name in CONFIG_READINGS:
-            result[name] = getattr(cfg, name)
-        results.append(result)
+        results.append(_result({k: float(v[j]) for k, v in summary.items()}, cfg, scheme, steps,
+                               wall, b * steps, density, seed, coordinator_actions,
+                               batch_size=b))
     return results
 
 
