@@ -358,3 +358,31 @@ def test_per_lane_cloud_batch_equals_one_run_per_seed(cloud: str) -> None:
         single = evaluate_scheme("EEC", 2, 2, r["density"], 400, r["seed"], policies=policies,
                                  progress=False, warn=False, **kw)
         assert _same(r, single) == [], (cloud, r["density"])
+
+
+def test_batch_actions_calls_clips_and_leaves_other_environments_at_zero() -> None:
+    from mivecc_agents.evaluation import batch_actions
+
+    calls: list[tuple[int, ...]] = []
+
+    def policy(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        calls.append(obs.shape)
+        return np.full(mask.shape, 5.0) * np.arange(1, mask.shape[-1] + 1)[None] / 10
+
+    obs = np.zeros((3, 2, 4, 4, 3), np.float32)  # 3 environments, 2 graphs, K = 4
+    mask = np.ones((3, 2, 4), np.float32)
+    per_env = batch_actions(policy, obs, mask, 1.5, stacked=False)
+    assert calls == [(2, 4, 4, 3)] * 3  # one call per environment, B = 1 shapes
+    assert per_env.dtype == np.float64
+    np.testing.assert_array_equal(per_env[0, 0], [0.5, 1.0, 1.5, 1.5])  # clipped to +-1.5
+    calls.clear()
+    stacked = batch_actions(policy, obs, mask, 1.5, stacked=True)
+    assert calls == [(6, 4, 4, 3)]  # one call on the stacked graphs
+    np.testing.assert_array_equal(stacked, per_env)
+    calls.clear()
+    some = batch_actions(policy, obs, mask, 1.5, stacked=True, envs=[2])
+    assert calls == [(2, 4, 4, 3)]  # not the whole batch: per environment
+    assert not some[:2].any() and some[2].any()
+    assert not batch_actions(None, obs, mask, 1.5, stacked=True).any()  # no policy: zeros
+    with pytest.raises(ValueError, match="policy returned shape"):
+        batch_actions(lambda o, m: np.zeros(3), obs, mask, 1.5, stacked=False)
