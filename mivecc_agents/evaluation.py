@@ -190,7 +190,7 @@ def _result(
 ) -> dict[str, Any]:
     """One run's result: its episode summary (NaN where nothing was measured yet), the run's
     settings and speed (``env_steps`` per wall-clock second), and the config readings."""
-    result: dict[str, Any] = mark_no_data(dict(summary), cfg)
+    result = mark_no_data(summary, cfg)  # a copy, NaN where nothing was measured yet
     result.update(
         steps=int(steps),
         steps_per_s=float(env_steps / wall) if wall > 0 else math.inf,
