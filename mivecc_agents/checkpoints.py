@@ -9,7 +9,7 @@ key                    content
 ``format``             :data:`CHECKPOINT_FORMAT` (marks a mivecc checkpoint)
 ``format_version``     :data:`CHECKPOINT_FORMAT_VERSION`
 ``package_version``    ``mivecc_env.__version__`` when written
-``env_version``        ``"mivecc_v0"``
+``env_version``        ``mivecc_env.ENV_VERSION`` (``"mivecc_v0"``)
 ``config``             the environment config as a dict (``MiVeCCConfig.to_dict()``)
 ``stage``              ``"edge"`` (stage I) or ``"cloud"`` (stage II)
 ``kind``               network kind trained, ``"edge"`` or ``"cloud"``
@@ -60,7 +60,7 @@ __all__ = [
 
 CHECKPOINT_FORMAT = "mivecc-checkpoint"
 CHECKPOINT_FORMAT_VERSION = 1
-ENV_VERSION = "mivecc_v0"
+ENV_VERSION = mivecc_env.ENV_VERSION  #: the env a checkpoint was trained on
 _REQUIRED = ("format_version", "kind", "grid_size", "actor", "critic", "stage")
 
 

@@ -357,9 +357,13 @@ class BatchedMiVeCCEnv:
                                                     (self.batch_size, self.n_edge))
         raw = None
         if raw_edge is not None:
-            raw = np.broadcast_to(np.asarray(raw_edge), (self.batch_size,))
+            raw = np.asarray(raw_edge)
+            if raw.shape not in ((), (1,), (self.batch_size,)):
+                raise ValueError(f"raw_edge: expected one bool or {self.batch_size} bools, "
+                                 f"got shape {raw.shape}")
             if raw.dtype != bool:
                 raise ValueError(f"raw_edge: expected bools, got dtype {raw.dtype}")
+            raw = np.broadcast_to(raw, (self.batch_size,))
         return self.step_commands(edge, cloud, signal, raw)
 
     # ------------------------------------------------------------------------------------

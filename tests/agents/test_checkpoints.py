@@ -85,6 +85,43 @@ def test_k_mismatch_and_version(tmp_path):
         load_checkpoint(tmp_path / "v.pt")
 
 
+def _rewritten(tmp_path, name, change):
+    """A saved edge checkpoint with ``change`` applied to its dict, written back raw."""
+    path = save_checkpoint(tmp_path / name, _payload())
+    data = torch.load(path, weights_only=True)
+    change(data)
+    torch.save(data, path)
+    return path
+
+
+def test_missing_entries_env_version_and_unknown_kind(tmp_path):
+    p = _rewritten(tmp_path, "m.pt", lambda d: d.pop("critic"))
+    with pytest.raises(CheckpointError, match=r"corrupt mivecc checkpoint, missing \['critic'\]"):
+        load_checkpoint(p)
+    p = _rewritten(tmp_path, "e.pt", lambda d: d.update(env_version="mivecc_v9"))
+    with pytest.raises(CheckpointError, match="trained on env 'mivecc_v9', this package "
+                       "provides 'mivecc_v0'"):
+        load_checkpoint(p)
+    p = _rewritten(tmp_path, "k.pt", lambda d: d.update(kind="fog"))
+    with pytest.raises(CheckpointError, match="unknown network kind 'fog'"):
+        load_checkpoint(p)
+    with pytest.raises(CheckpointError, match="unknown network kind 'fog'"):
+        load_policy(p)
+
+
+def test_a_failed_save_leaves_the_old_file_and_no_temporary(ckpt, monkeypatch):
+    before = ckpt.read_bytes()
+
+    def broken_save(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(torch, "save", broken_save)
+    with pytest.raises(OSError, match="disk full"):
+        save_checkpoint(ckpt, _payload())
+    assert ckpt.read_bytes() == before
+    assert not list(ckpt.parent.glob(".*.tmp"))
+
+
 def test_weights_do_not_fit(tmp_path):
     bad = _payload()
     bad["actor"] = make_actor_net("cloud").state_dict()

@@ -386,3 +386,18 @@ def test_batch_actions_calls_clips_and_leaves_other_environments_at_zero() -> No
     assert not batch_actions(None, obs, mask, 1.5, stacked=True).any()  # no policy: zeros
     with pytest.raises(ValueError, match="policy returned shape"):
         batch_actions(lambda o, m: np.zeros(3), obs, mask, 1.5, stacked=False)
+    with pytest.raises(ValueError, match=r"policy returned shape \(3,\), expected \(6, 4\)"):
+        batch_actions(lambda o, m: np.zeros(3), obs, mask, 1.5, stacked=True)
+
+
+def test_evaluation_names_its_bad_arguments() -> None:
+    from mivecc_env import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^densities and seeds: need at least one each"):
+        evaluate_batch("E", 1, 1, [900.0], 5, [])
+    with pytest.raises(ConfigError, match=r"^seed: must be an integer >= 0, got -1$"):
+        evaluate_batch("E", 1, 1, [900.0], 5, [0, -1])
+    with pytest.raises(ConfigError, match=r"^seed: must be an integer >= 0, got 1.5$"):
+        evaluate_scheme("E", 1, 1, 900.0, 5, 1.5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"^policy returned shape \(2,\), expected \(1, 15\)$"):
+        evaluate_scheme("EE", 1, 1, 900.0, 5, 0, policies={"edge": lambda o, m: np.zeros(2)})

@@ -238,3 +238,46 @@ def test_released_model_partial_reset_matches_single_runs() -> None:
     seen = run_against_singles(kw, [1, 2, 3], [2100.0] * 3, steps=200,
                                resets={40: [1], 70: [0, 2], 90: [1], 150: [2]})
     assert seen > 1000
+
+
+def test_more_bad_input_names_the_argument() -> None:
+    with pytest.raises(ConfigError, match=r"^config: must be a MiVeCCConfig, got dict$"):
+        BatchedMiVeCCEnv(config={"rows": 1})  # type: ignore[arg-type]
+    env = BatchedMiVeCCEnv(batch_size=2, rows=1, cols=1, scheme="EE", observe={"cloud"})
+    with pytest.raises(RuntimeError, match=r"^reset_at: call reset\(\) first$"):
+        env.reset_at([0])
+    env.reset(seed=0)
+    with pytest.raises(RuntimeError, match="edge_action given but 'edge' is not observed"):
+        env.step(np.zeros((2, 1, 15)))
+    with pytest.raises(ValueError, match=r"^raw_edge: expected bools, got dtype int64$"):
+        env.step(raw_edge=np.array([1, 0]))
+    with pytest.raises(ValueError,
+                       match=r"^raw_edge: expected one bool or 2 bools, got shape \(3,\)$"):
+        env.step(raw_edge=[True, False, True])
+    with pytest.raises(ValueError, match=r"^env_index: expected integer indices or a bool mask, "
+                       r"got float64$"):
+        env.reset_at([0.0])
+    with pytest.raises(ValueError, match=r"^env_index: repeated indices \[1, 1\]$"):
+        env.reset_at([1, 1])
+    with pytest.raises(ValueError, match=r"^seed: expected an int or 2 ints, got 'ab'$"):
+        env.reset(seed="ab")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"^seed: expected 2 seeds, got 1$"):
+        env.reset(seed=[3])
+    cloud_only = BatchedMiVeCCEnv(batch_size=1, rows=1, cols=1, scheme="EEC", observe={"edge"})
+    cloud_only.reset(seed=0)
+    with pytest.raises(RuntimeError, match="cloud_action given but 'cloud' is not observed"):
+        cloud_only.step(None, np.zeros((1, 60)))
+    with pytest.raises(RuntimeError, match=r"start_chunk: only for continuous=True"):
+        cloud_only.start_chunk([0])
+    chunks = BatchedMiVeCCEnv(batch_size=1, rows=1, cols=1, continuous=True, max_steps=5)
+    with pytest.raises(RuntimeError, match=r"^start_chunk: call reset\(\) first$"):
+        chunks.start_chunk([0])
+
+
+def test_densities_are_a_read_only_view() -> None:
+    env = BatchedMiVeCCEnv(batch_size=2, rows=1, cols=1, densities=[600.0, 1800.0])
+    d = env.densities
+    assert d.tolist() == [600.0, 1800.0]
+    with pytest.raises(ValueError, match="read-only"):
+        d[0] = 0.0
+    assert env.densities.tolist() == [600.0, 1800.0]

@@ -168,3 +168,32 @@ def test_parallel_env_reset_bad_seed_names_argument(bad: object) -> None:
     obs_a, _ = env.reset(seed=np.int64(3))
     obs_b, _ = env.reset(seed=3)
     assert all(np.array_equal(obs_a[k], obs_b[k]) for k in obs_a)
+
+
+def test_zero_dimensional_seed_array_names_argument() -> None:
+    with pytest.raises(ValueError, match=r"^seed: must be None, an integer >= 0"):
+        Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=2,
+                  seed=np.array(3))  # type: ignore[arg-type]
+
+
+def test_non_numeric_densities_name_argument() -> None:
+    with pytest.raises(ValueError, match=r"^densities: expected 2 numbers \[veh/lane/h\]$"):
+        Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=2, densities=["a", "b"])
+
+
+def test_reset_at_needs_one_seed_per_environment() -> None:
+    sim = _sim()
+    with pytest.raises(ValueError, match=r"^seeds: need one seed per reset environment \(1\), "
+                       r"got 2$"):
+        sim.reset_at([1], [4, 5])
+
+
+def test_action_that_cannot_become_an_array_names_argument() -> None:
+    class Unconvertible:  # like a torch tensor that requires grad
+        def __array__(self, *args: object, **kwargs: object) -> np.ndarray:
+            raise RuntimeError("cannot convert")
+
+    sim = _sim()
+    with pytest.raises(ValueError, match=r"^cloud_accel: must be a numeric array of shape "
+                       r"\(2, \d+\) \(batch_size, capacity\), got Unconvertible"):
+        sim.step(cloud_accel=Unconvertible())
