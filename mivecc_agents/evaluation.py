@@ -153,6 +153,10 @@ def _check_args(
             raise ConfigError(
                 f"policies: keys must be 'edge' and/or 'cloud', got {sorted(unknown)}"
             )
+        for kind, policy in policies.items():
+            if policy is not None and not callable(policy):
+                raise ConfigError(f"policies: {kind!r} must be a callable (obs, mask) -> "
+                                  f"actions or None, got {type(policy).__name__}")
 
 
 def _coordinator_actions(
@@ -394,12 +398,16 @@ def evaluate_batch(
     seeds = list(seeds)
     if not dens or not seeds:
         raise ConfigError(f"densities and seeds: need at least one each, got {dens}, {seeds}")
+    try:
+        dens = [float(d) for d in dens]
+    except (TypeError, ValueError):
+        raise ConfigError(f"densities: must be numbers [veh/lane/h], got {dens!r}") from None
     for seed in seeds:
         _check_args(scheme, steps, seed, policies, config_overrides)
     policies = dict(policies or {})
     overrides = scheme_overrides(scheme, config_overrides)
     adopt_cloud_period(policies, overrides, overrides["scheme"])
-    pairs = [(float(d), int(s)) for d in dens for s in seeds]
+    pairs = [(d, int(s)) for d in dens for s in seeds]
     needed_scheme = overrides["scheme"]
     needed = _needed_policies(needed_scheme)
     env = BatchedMiVeCCEnv(

@@ -22,6 +22,7 @@ import torch
 
 from mivecc_agents.checkpoints import CheckpointError, load_checkpoint, network_variant
 from mivecc_agents.networks import ACTION_SCALE_MPS2, make_actor_net
+from mivecc_env.model_presets import MODEL_PRESETS
 
 __all__ = [
     "CEILING_ACCEL_MPS2",
@@ -194,7 +195,15 @@ def pretrained_path(kind: str, model: str = "paper", safety_shield: bool = False
         safety_shield: The env config's ``safety_shield``. When true and the model has a
             policy of this kind trained under the shield (``<model folder>/shield/<kind>.pt``),
             that one; otherwise the model's policy trained without it.
+
+    Raises:
+        ValueError: an unknown ``kind`` or ``model`` (a misspelt model would otherwise find
+            no shipped policy and evaluate with zero actions).
     """
+    if kind not in ("edge", "cloud"):
+        raise ValueError(f"kind: must be 'edge' or 'cloud', got {kind!r}")
+    if model not in MODEL_PRESETS:
+        raise ValueError(f"model: must be one of {sorted(MODEL_PRESETS)}, got {model!r}")
     folder = PRETRAINED_DIR if model == "paper" else PRETRAINED_DIR / str(model)
     candidates = [folder / "shield" / f"{kind}.pt"] if safety_shield else []
     candidates.append(folder / f"{kind}.pt")
@@ -207,11 +216,13 @@ def pretrained_policies(
 ) -> dict[str, Policy]:
     """The shipped policies of a model (and shield setting, see :func:`pretrained_path`) as
     ``{"edge": fn, "cloud": fn}`` (the kinds shipped); a checkpoint given as ``edge`` /
-    ``cloud`` replaces that kind's shipped policy."""
+    ``cloud`` replaces that kind's shipped policy (an unknown ``model`` is a ``ValueError``
+    either way)."""
     given = {"edge": edge, "cloud": cloud}
     out: dict[str, Policy] = {}
     for kind in ("edge", "cloud"):
-        path = given[kind] or pretrained_path(kind, model, safety_shield)
+        shipped = pretrained_path(kind, model, safety_shield)
+        path = given[kind] or shipped
         if path is not None:
             out[kind] = load_policy(path, expected_kind=kind)
     return out

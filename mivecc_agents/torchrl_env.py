@@ -112,6 +112,8 @@ class MiVeCCTorchEnv(EnvBase):
         bad = sorted(set(summary_keys) - set(SUMMARY_KEYS))
         if bad:
             raise ValueError(f"summary_keys: unknown {bad}; known: {list(SUMMARY_KEYS)}")
+        if densities is not None and len(densities) == 0:
+            raise ValueError("densities: need at least one [veh/lane/h], got none")
         if batch_size is None:
             batch_size = len(densities) if densities is not None else 1
         if isinstance(raw_edge_period, bool) or int(raw_edge_period) != raw_edge_period or (

@@ -69,11 +69,18 @@ class MiVeCCEdgesParallelEnv(ParallelEnv):
 
     def observation_space(self, agent: str) -> spaces.Box:
         """``Box(-1, 1, (K_edge, K_edge, 3), float32)``, the same for every agent."""
-        return self._env.observation_space(agent)
+        return self._env.observation_space(self._edge_agent(agent, "observation_space"))
 
     def action_space(self, agent: str) -> spaces.Box:
         """``Box(-a_max, a_max, (K_edge,), float32)``, the same for every agent."""
-        return self._env.action_space(agent)
+        return self._env.action_space(self._edge_agent(agent, "action_space"))
+
+    def _edge_agent(self, agent: str, what: str) -> str:
+        """``agent`` if it is one of this env's agents, else a ``KeyError`` naming them."""
+        if agent not in self.possible_agents:
+            raise KeyError(f"{what}: unknown agent {agent!r}; agents are "
+                           f"{self.possible_agents}")
+        return agent
 
     def reset(
         self, seed: int | None = None, options: dict | None = None

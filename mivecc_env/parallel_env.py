@@ -197,13 +197,21 @@ class MiVeCCParallelEnv(ParallelEnv):
         """``Box(-1, 1, (K, K, 3), float32)`` of ``agent`` (the same object on every call;
         ``cloud_0``'s: ``config.cloud_graph_shape``); a signal agent's is ``Box(low, high,
         (15,), float32)`` (:mod:`..signal_agents`)."""
-        return self._obs_spaces[agent]
+        return self._space(self._obs_spaces, agent, "observation_space")
 
     def action_space(self, agent: str) -> spaces.Space:
         """``Box(-a_max, a_max, (K,), float32)`` of ``agent`` (the same object on every call;
         ``cloud_0``'s: ``config.cloud_action_shape``); ``Discrete(2)`` (the phase wanted green)
         for a signal agent."""
-        return self._act_spaces[agent]
+        return self._space(self._act_spaces, agent, "action_space")
+
+    def _space(self, spaces_of: dict[str, spaces.Space], agent: str, what: str) -> spaces.Space:
+        """``spaces_of[agent]``; an unknown agent is a ``KeyError`` naming the agents."""
+        try:
+            return spaces_of[agent]
+        except (KeyError, TypeError):
+            raise KeyError(f"{what}: unknown agent {agent!r}; agents are "
+                           f"{self.possible_agents}") from None
 
     @functools.cached_property
     def upper_bound_mps(self) -> float:

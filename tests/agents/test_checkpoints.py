@@ -160,6 +160,18 @@ def test_cli_has_train_subcommand():
     assert args.stage == "cloud" and args.density == [900.0, 1500.0]
 
 
+def test_unknown_kind_or_model_of_the_shipped_policies_is_refused(ckpt):
+    from mivecc_agents.policies import pretrained_policies
+
+    with pytest.raises(ValueError, match=r"^kind: must be 'edge' or 'cloud', got 'fog'$"):
+        pretrained_path("fog")
+    with pytest.raises(ValueError, match=r"^model: must be one of \['paper', 'released'\], "
+                       r"got 'relased'$"):
+        pretrained_path("edge", "relased")
+    with pytest.raises(ValueError, match="model: must be one of"):  # even with both given
+        pretrained_policies("relased", edge=ckpt, cloud=ckpt)
+
+
 def test_shipped_pretrained_policies_load():
     import numpy as np
 

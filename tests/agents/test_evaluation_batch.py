@@ -401,3 +401,9 @@ def test_evaluation_names_its_bad_arguments() -> None:
         evaluate_scheme("E", 1, 1, 900.0, 5, 1.5)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"^policy returned shape \(2,\), expected \(1, 15\)$"):
         evaluate_scheme("EE", 1, 1, 900.0, 5, 0, policies={"edge": lambda o, m: np.zeros(2)})
+    with pytest.raises(ConfigError, match=r"^densities: must be numbers \[veh/lane/h\], "
+                       r"got \['a'\]$"):
+        evaluate_batch("E", 1, 1, ["a"], 5, [0])  # type: ignore[list-item]
+    with pytest.raises(ConfigError, match=r"^policies: 'edge' must be a callable \(obs, mask\) "
+                       r"-> actions or None, got int$"):
+        evaluate_scheme("EE", 1, 1, 900.0, 5, 0, policies={"edge": 3})  # type: ignore[dict-item]

@@ -128,3 +128,7 @@ def test_bad_arguments() -> None:
         MiVeCCTorchEnv(groups=("bus",))
     with pytest.raises(ValueError, match="summary_keys"):
         MiVeCCTorchEnv(summary_keys=("speed",))
+    with pytest.raises(ValueError, match=r"^densities: need at least one \[veh/lane/h\]"):
+        MiVeCCTorchEnv(densities=[])
+    with pytest.raises(ValueError, match=r"^raw_edge_period: must be an integer >= 0, got -1$"):
+        MiVeCCTorchEnv(raw_edge_period=-1)

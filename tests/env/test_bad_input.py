@@ -109,6 +109,21 @@ def test_unknown_agent(env: MiVeCCParallelEnv, key: object) -> None:
     assert "edge_0" in str(err.value)  # lists the valid agents
 
 
+@pytest.mark.parametrize("key", ["edge_2", "cloud_1", 0, ["edge_0"]])
+def test_spaces_of_an_unknown_agent_name_the_agents(env: MiVeCCParallelEnv, key: object) -> None:
+    from mivecc_env import mivecc_edges_v0
+
+    edges = mivecc_edges_v0.parallel_env(rows=1, cols=2)
+    for e in (env, edges):
+        for what in ("action_space", "observation_space"):
+            with pytest.raises(KeyError, match=rf"{what}: unknown agent {re.escape(repr(key))}; "
+                               r"agents are \['edge_0', 'edge_1'"):
+                getattr(e, what)(key)
+    with pytest.raises(KeyError, match="unknown agent 'cloud_0'"):  # not an agent of edges
+        edges.action_space("cloud_0")
+    assert env.action_space("cloud_0").shape == (60,)
+
+
 def test_actions_not_a_dict(env: MiVeCCParallelEnv) -> None:
     with pytest.raises(ValueError, match="expected a dict"):
         env.step([np.zeros(15)] * 3)  # type: ignore[arg-type]
