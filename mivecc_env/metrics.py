@@ -177,7 +177,13 @@ def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
     ``float(batch_summary(sim)[key][env])`` for every key; with numba one compiled call (the
     ParallelEnv puts this summary in its infos every step, where the numpy reference's many
     small calls cost more than the rest of the infos together).
+
+    Raises:
+        IndexError: ``env`` outside ``[-B, B)``.
     """
+    if not -sim.batch_size <= env < sim.batch_size:
+        raise IndexError(f"env: must be in [-{sim.batch_size}, {sim.batch_size}) (the "
+                         f"simulator holds {sim.batch_size} environments), got {env}")
     if summary_kernel.HAVE_NUMBA:
         return dict(zip(SUMMARY_KEYS, _summary_table(sim, None)[:, env].tolist(), strict=True))
     return {key: float(value[env]) for key, value in batch_summary(sim).items()}

@@ -62,6 +62,15 @@ def test_summary_of_a_fresh_simulator() -> None:
             assert summary[key] == 0.0, key
 
 
+def test_summary_of_an_environment_the_simulator_lacks_names_it() -> None:
+    sim = Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=2, seed=0)
+    assert episode_summary(sim, -1) == episode_summary(sim, 1)
+    for env in (2, -3):
+        with pytest.raises(IndexError, match=rf"^env: must be in \[-2, 2\) \(the simulator "
+                           rf"holds 2 environments\), got {env}$"):
+            episode_summary(sim, env)
+
+
 def test_a_lone_vehicle_reaches_the_upper_bound() -> None:
     # alone on the road (SV = +20 -> a = +3), it accelerates to 13 m/s in 1 s, then cruises:
     # exit at 23.1923 s, travel velocity 300 / 23.1923 = the 1x1 upper bound
