@@ -9,6 +9,7 @@ from typing import Any
 
 from mivecc_agents.presets import TrainPreset
 from mivecc_agents.stages import GROUPS, TrainingError
+from mivecc_env.config import ConfigError, from_overrides
 
 __all__ = ["density_list", "env_factory", "env_groups", "make_env", "make_native_env",
            "worker_env_fns"]
@@ -71,11 +72,25 @@ def _make_batched_env(densities: Sequence[float], overrides: dict[str, Any], sch
 
 
 def density_list(densities: float | Sequence[float]) -> list[float]:
-    if isinstance(densities, (int, float)):
-        return [float(densities)]
-    dens = [float(d) for d in densities]
-    if not dens:
+    """The training densities [veh/lane/h] as a list of floats.
+
+    Raises:
+        TrainingError: none given, or one that is not a number in the config's range of
+            ``density_vplh`` (the message names ``densities`` and that range).
+    """
+    items = [densities] if isinstance(densities, int | float) else list(densities)
+    if not items:
         raise TrainingError("at least one density is needed")
+    dens = []
+    for d in items:
+        try:
+            from_overrides(None, density=d)
+            dens.append(float(d))
+        except (ConfigError, TypeError, ValueError) as exc:
+            rule = str(exc).removeprefix("density_vplh: ").split(", got ")[0] + " veh/lane/h"
+            if not isinstance(exc, ConfigError):
+                rule = "must be a number [veh/lane/h]"
+            raise TrainingError(f"densities: each {rule}, got {d!r}") from None
     return dens
 
 

@@ -34,6 +34,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -503,6 +504,16 @@ class _EvaluationSchedule:
         self.next_eval = frames + self.p.eval_every_frames
 
 
+def _check_counts(**counts: tuple[Any, int, bool]) -> None:
+    """Raise :class:`TrainingError` naming the first argument that is not an integer at least
+    its lower bound (``name=(value, low, none_ok)``; ``None`` passes where ``none_ok``)."""
+    for name, (value, low, none_ok) in counts.items():
+        if value is None and none_ok:
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
+            raise TrainingError(f"{name}: must be an integer >= {low}, got {value!r}")
+
+
 def _train(
     stage: str = "edge",
     preset: str | TrainPreset = DEFAULT_PRESET,
@@ -548,7 +559,7 @@ def _train(
         config_overrides: Extra env config fields.
         episode_steps: Steps per episode (default: the preset's).
         buffer_size: Replay capacity override [transitions].
-        save_every: Save a checkpoint every this many iterations.
+        save_every: Save a checkpoint every this many iterations (0: only the final one).
         backend: ``"native"`` (batched TorchRL env, default) or ``"pettingzoo"`` (the
             PettingZooWrapper + SerialEnv path, one env per density).
         envs_per_density: Native backend: environments per density (default: the preset's
@@ -566,6 +577,10 @@ def _train(
 
     if stage not in STAGES:
         raise TrainingError(f"unknown stage {stage!r}; expected 'edge' or 'cloud'")
+    _check_counts(frames=(frames, 1, True), seed=(seed, 0, False), workers=(workers, 1, False),
+                  save_every=(save_every, 0, False))
+    if Path(out_dir).exists() and not Path(out_dir).is_dir():
+        raise TrainingError(f"out_dir: {str(out_dir)!r} is a file, not a folder")
     device = learner_device(device)
     group, scheme = STAGES[stage]["group"], STAGES[stage]["scheme"]
     dens = density_list(densities)

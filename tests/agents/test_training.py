@@ -242,6 +242,35 @@ def test_presets_and_errors(tmp_path):
         train("edge", TINY, frames=50, out_dir=tmp_path, ray_address="auto", progress=False)
 
 
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"frames": -5}, r"^frames: must be an integer >= 1, got -5$"),
+    ({"frames": 1.5}, r"^frames: must be an integer >= 1, got 1.5$"),
+    ({"seed": "a"}, r"^seed: must be an integer >= 0, got 'a'$"),
+    ({"workers": 0}, r"^workers: must be an integer >= 1, got 0$"),
+    ({"save_every": -1}, r"^save_every: must be an integer >= 0, got -1$"),
+    ({"densities": [900.0, -900.0]},
+     r"^densities: each must be a number in \[1.0, 3600.0\] veh/lane/h, got -900.0$"),
+    ({"densities": ["a"]},
+     r"^densities: each must be a number in \[1.0, 3600.0\] veh/lane/h, got 'a'$"),
+    ({"densities": []}, r"^at least one density is needed$"),
+])
+def test_bad_arguments_of_the_python_api_are_named(tmp_path, kwargs, message):
+    from mivecc_agents.training import TrainingError
+
+    args = {"frames": 50, "out_dir": tmp_path / "run", "progress": False, **kwargs}
+    with pytest.raises(TrainingError, match=message):
+        train("edge", TINY, **args)
+    assert not (tmp_path / "run").exists()  # refused before anything was written
+
+
+def test_an_output_path_that_is_a_file_is_refused(tmp_path):
+    from mivecc_agents.training import TrainingError
+
+    (tmp_path / "taken").write_text("")
+    with pytest.raises(TrainingError, match=r"^out_dir: '.*taken' is a file, not a folder$"):
+        train("edge", TINY, frames=50, out_dir=tmp_path / "taken", progress=False)
+
+
 def test_training_leaves_the_global_torch_rng_alone(tmp_path):
     import torch
 
