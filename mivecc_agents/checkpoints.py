@@ -148,8 +148,14 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
 
     Returns:
         The path written.
+
+    Raises:
+        IsADirectoryError: ``path`` is a folder.
     """
     path = Path(path)
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a folder; a checkpoint needs a file name "
+                                f"(e.g. {path / 'policy.pt'})")
     path.parent.mkdir(parents=True, exist_ok=True)
     data = dict(payload)
     data.update(

@@ -507,8 +507,12 @@ def stacking_is_exact(policy: Policy | None, n_envs: int, n_agents: int, k: int)
     stacked.
 
     Args:
-        n_envs / n_agents / k: the batch, the agents per environment, the graph size K.
+        n_envs / n_agents / k: the batch, the agents per environment, the graph size K
+            (each at least 1: a ``ValueError`` names the first that is not).
     """
+    for name, value in (("n_envs", n_envs), ("n_agents", n_agents), ("k", k)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+            raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
     if policy is None or n_envs == 1:
         return policy is not None
     rng = np.random.default_rng(0)

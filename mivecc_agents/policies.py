@@ -101,10 +101,10 @@ def actor_policy(net: torch.nn.Module, kind: str) -> Policy:
     def policy(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
         o = torch.as_tensor(np.asarray(obs, dtype=np.float32))
         m = torch.as_tensor(np.asarray(mask, dtype=np.float32))
-        if o.shape[-3:] != (k, k, 3) or m.shape[-1] != k:
+        if o.shape[-3:] != (k, k, 3) or m.shape[-1:] != (k,) or o.shape[:-3] != m.shape[:-1]:
             raise ValueError(
-                f"{kind} policy expects obs (..., {k}, {k}, 3) and mask (..., {k}), "
-                f"got {tuple(o.shape)} and {tuple(m.shape)}"
+                f"{kind} policy expects obs (..., {k}, {k}, 3) and mask (..., {k}) with the "
+                f"same leading shape, got {tuple(o.shape)} and {tuple(m.shape)}"
             )
         with torch.no_grad():
             a = net(o, m).clamp(-ACTION_SCALE_MPS2, ACTION_SCALE_MPS2)

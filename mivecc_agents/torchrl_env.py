@@ -208,9 +208,9 @@ class MiVeCCTorchEnv(EnvBase):
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         edge = cloud = None
         if "edge" in self.groups:
-            edge = tensordict.get(("edge", "action")).detach().cpu().numpy()
+            edge = self._action(tensordict, "edge")
         if "cloud" in self.groups:
-            cloud = tensordict.get(("cloud", "action")).detach().cpu().numpy().reshape(
+            cloud = self._action(tensordict, "cloud").reshape(
                 self.batch_size[0], *self.config.cloud_action_shape)
         n = self.raw_edge_period
         raw = None
@@ -223,6 +223,15 @@ class MiVeCCTorchEnv(EnvBase):
             raw_edge=raw,
         )
         return self._pack(step, with_reward=True)
+
+    def _action(self, tensordict: TensorDictBase, group: str) -> np.ndarray:
+        """``(group, "action")`` of ``tensordict`` as a numpy array (checked by the batched
+        env's action rule); a ``KeyError`` naming the key if it is missing."""
+        action = tensordict.get((group, "action"), None)
+        if action is None:
+            raise KeyError(f"({group!r}, 'action'): missing; the env's groups "
+                           f"{list(self.groups)} each need an action at every step")
+        return action.detach().cpu().numpy()
 
     # ------------------------------------------------------------------------------------
     def _pack(self, step: BatchStep, with_reward: bool) -> TensorDictBase:

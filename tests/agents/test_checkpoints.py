@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -215,3 +216,13 @@ def test_evaluation_with_a_checkpoint_is_deterministic():
     e = evaluate_scheme("E", 1, 1, 1500, 400, 7, progress=False)
     ee = evaluate_scheme("EE", 1, 1, 1500, 400, 7, policies=policies, progress=False)
     assert e["mean_speed_mps"] != ee["mean_speed_mps"]
+
+
+def test_a_policy_needs_graphs_and_masks_of_one_leading_shape_and_a_file_to_save_to(tmp_path):
+    policy = load_policy(save_checkpoint(tmp_path / "edge.pt", _payload()))
+    assert policy(np.zeros((2, 15, 15, 3)), np.ones((2, 15))).shape == (2, 15)
+    with pytest.raises(ValueError, match=r"with the same leading shape, got \(2, 15, 15, 3\) "
+                       r"and \(3, 15\)$"):
+        policy(np.zeros((2, 15, 15, 3)), np.ones((3, 15)))
+    with pytest.raises(IsADirectoryError, match=r"is a folder; a checkpoint needs a file name"):
+        save_checkpoint(tmp_path, _payload())

@@ -407,3 +407,15 @@ def test_evaluation_names_its_bad_arguments() -> None:
     with pytest.raises(ConfigError, match=r"^policies: 'edge' must be a callable \(obs, mask\) "
                        r"-> actions or None, got int$"):
         evaluate_scheme("EE", 1, 1, 900.0, 5, 0, policies={"edge": 3})  # type: ignore[dict-item]
+
+
+def test_stacking_check_names_an_empty_shape() -> None:
+    from mivecc_agents.evaluation import stacking_is_exact
+
+    def policy(obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        return np.asarray(mask, np.float32)
+
+    assert stacking_is_exact(policy, 3, 2, 4)
+    for args, name in (((0, 2, 4), "n_envs"), ((3, 0, 4), "n_agents"), ((3, 2, 0), "k")):
+        with pytest.raises(ValueError, match=rf"^{name}: must be an integer >= 1, got 0$"):
+            stacking_is_exact(policy, *args)

@@ -132,3 +132,12 @@ def test_bad_arguments() -> None:
         MiVeCCTorchEnv(densities=[])
     with pytest.raises(ValueError, match=r"^raw_edge_period: must be an integer >= 0, got -1$"):
         MiVeCCTorchEnv(raw_edge_period=-1)
+
+
+def test_a_missing_group_action_is_named() -> None:
+    env = MiVeCCTorchEnv(densities=[900.0], rows=1, cols=1)
+    td = env.reset()
+    td["edge", "action"] = torch.zeros(1, 1, 15)
+    with pytest.raises(KeyError, match=r"\('cloud', 'action'\): missing; the env's groups "
+                       r"\['edge', 'cloud'\] each need an action at every step"):
+        env.step(td)
