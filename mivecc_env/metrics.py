@@ -36,6 +36,7 @@ import numpy as np
 from mivecc_env import summary_kernel
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import near_miss
+from mivecc_env.sim.checks import check_env_index
 
 if TYPE_CHECKING:
     from mivecc_env.sim.core import Simulator
@@ -179,11 +180,9 @@ def episode_summary(sim: Simulator, env: int = 0) -> dict[str, float]:
     small calls cost more than the rest of the infos together).
 
     Raises:
-        IndexError: ``env`` outside ``[-B, B)``.
+        IndexError: ``env`` not an integer in ``[-B, B)``.
     """
-    if not -sim.batch_size <= env < sim.batch_size:
-        raise IndexError(f"env: must be in [-{sim.batch_size}, {sim.batch_size}) (the "
-                         f"simulator holds {sim.batch_size} environments), got {env}")
+    env = check_env_index(env, sim.batch_size)
     if summary_kernel.HAVE_NUMBA:
         return dict(zip(SUMMARY_KEYS, _summary_table(sim, None)[:, env].tolist(), strict=True))
     return {key: float(value[env]) for key, value in batch_summary(sim).items()}

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from mivecc_env.sim.checks import check_env_index
 from mivecc_env.sim.network import GridNetwork
 
 if TYPE_CHECKING:
@@ -161,6 +162,7 @@ def render_rgb(sim: Simulator, env: int = 0, px_per_m: float = 1.0) -> UInt8Arra
     """
     if not px_per_m > 0:
         raise ValueError(f"px_per_m: must be > 0, got {px_per_m!r}")
+    env = check_env_index(env, sim.batch_size)
     network = sim.network
     img = _background(network, px_per_m).copy()
     h, w = img.shape[:2]
@@ -186,6 +188,10 @@ def render_rgb(sim: Simulator, env: int = 0, px_per_m: float = 1.0) -> UInt8Arra
 # ----------------------------------------------------------------------------------------
 # heat maps
 def _cell_grid_shape(network: GridNetwork, cell_m: float) -> tuple[int, int]:
+    """Cells per axis ``(ny, nx)`` of the heat-map grid; ``ValueError`` unless ``cell_m`` is
+    a finite length > 0 [m]."""
+    if not (isinstance(cell_m, int | float | np.number) and 0 < cell_m < math.inf):
+        raise ValueError(f"cell_m: must be a finite length > 0 [m], got {cell_m!r}")
     width_m, height_m = network.extent_m
     return _n_cells(height_m / cell_m), _n_cells(width_m / cell_m)
 
@@ -232,10 +238,9 @@ def heatmap_grids(
         ``(velocity, density)``, both ``(ny, nx)`` float arrays: the mean velocity [m/s] of
         the vehicles in each cell (NaN where the cell is empty) and the density.
     """
-    if not cell_m > 0:
-        raise ValueError(f"cell_m: must be > 0, got {cell_m!r}")
     if density not in ("count", "veh_per_km"):
         raise ValueError(f"density: must be 'count' or 'veh_per_km', got {density!r}")
+    env = check_env_index(env, sim.batch_size)
     network = sim.network
     ny, nx = _cell_grid_shape(network, cell_m)
     m = sim.active[env]

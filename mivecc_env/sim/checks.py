@@ -1,4 +1,5 @@
-"""Input checks of the simulator's public API: seeds, batch sizes and action arrays.
+"""Input checks of the simulator's public API: seeds, batch sizes, environment indices and
+action arrays.
 
 Each check raises ``ValueError`` naming the argument and what is allowed, and costs a few
 scalar tests (plus one pass over an action array for infinities), so it can run every step.
@@ -12,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_accel", "check_positive_int", "check_seed"]
+__all__ = ["check_accel", "check_env_index", "check_positive_int", "check_seed"]
 
 _SEED_RULE = "None, an integer >= 0, or a sequence of integers >= 0"
 
@@ -33,6 +34,20 @@ def _integer_at_least(name: str, value: Any, minimum: int, rule: str) -> int:
 def check_positive_int(name: str, value: Any) -> int:
     """``value`` as a Python int >= 1 (numpy integers accepted); ``ValueError`` otherwise."""
     return _integer_at_least(name, value, 1, "an integer >= 1")
+
+
+def check_env_index(env: Any, batch_size: int) -> int:
+    """``env`` as an int in ``[-batch_size, batch_size)`` (negative: numpy's meaning, from
+    the end); ``IndexError`` naming ``env`` and the range otherwise."""
+    if not isinstance(env, bool | np.bool_):
+        try:
+            index = operator.index(env)
+        except TypeError:
+            index = None
+        if index is not None and -batch_size <= index < batch_size:
+            return index
+    raise IndexError(f"env: must be an integer in [-{batch_size}, {batch_size}) (the "
+                     f"simulator holds {batch_size} environments), got {env!r}")
 
 
 def _seed_int(name: str, value: Any) -> int:

@@ -149,3 +149,18 @@ def test_gymnasium_edge_view_renders_human_headless() -> None:
     viewer = env.unwrapped.parallel_env._viewer
     assert viewer is not None and viewer.frames_shown >= 6  # reset + 5 steps (+ render)
     env.close()
+
+
+def test_bad_environment_index_and_cell_size_are_named() -> None:
+    from mivecc_env.render import lane_length_per_cell
+
+    sim = Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=2, seed=0)
+    assert render_rgb(sim, -1).shape == render_rgb(sim, 1).shape
+    for draw in (render_rgb, heatmap_grids):
+        with pytest.raises(IndexError, match=r"^env: must be an integer in \[-2, 2\)"):
+            draw(sim, 2)
+    for bad in (0.0, -5.0, float("nan"), float("inf"), "10"):
+        with pytest.raises(ValueError, match=r"^cell_m: must be a finite length > 0 \[m\]"):
+            lane_length_per_cell(sim.network, bad)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match=r"^cell_m: "):
+            heatmap_grids(sim, 0, bad)  # type: ignore[arg-type]

@@ -65,10 +65,10 @@ def test_summary_of_a_fresh_simulator() -> None:
 def test_summary_of_an_environment_the_simulator_lacks_names_it() -> None:
     sim = Simulator(MiVeCCConfig(rows=1, cols=1), batch_size=2, seed=0)
     assert episode_summary(sim, -1) == episode_summary(sim, 1)
-    for env in (2, -3):
-        with pytest.raises(IndexError, match=rf"^env: must be in \[-2, 2\) \(the simulator "
-                           rf"holds 2 environments\), got {env}$"):
-            episode_summary(sim, env)
+    for env in (2, -3, 1.0, True):
+        with pytest.raises(IndexError, match=rf"^env: must be an integer in \[-2, 2\) \(the "
+                           rf"simulator holds 2 environments\), got {env}$"):
+            episode_summary(sim, env)  # type: ignore[arg-type]
 
 
 def test_a_lone_vehicle_reaches_the_upper_bound() -> None:
