@@ -127,6 +127,8 @@ class MiVeCCEdgeVectorEnv(VectorEnv):
         overrides.setdefault("scheme", "EE")
         if max_episode_steps is not None:
             overrides.setdefault("max_steps", max_episode_steps)
+        if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+            raise ConfigError(f"num_envs: must be an integer >= 1, got {num_envs!r}")
         self.env = BatchedMiVeCCEnv(batch_size=num_envs, densities=densities, observe={"edge"},
                                     **overrides)
         c = self.env.config
@@ -155,7 +157,7 @@ class MiVeCCEdgeVectorEnv(VectorEnv):
                      if isinstance(seed, int | np.integer) else [int(x) for x in seed])
             if len(seeds) != self.num_envs:
                 raise ValueError(f"seed: expected an int or {self.num_envs} ints, "
-                                 f"got {len(seeds)}")
+                                 f"got {len(seeds)} ints")
             self._rngs = [seeding.np_random(x)[0] for x in seeds]
         self._autoreset[:] = False
         out = self.env.reset(seed=seeds)

@@ -74,3 +74,13 @@ def test_unseeded_reset_and_per_env_densities() -> None:
     assert arrived[1] > 2 * arrived[0]  # the demands differ per copy
     with pytest.raises(mivecc_env.ConfigError, match="intersection"):
         MiVeCCEdgeVectorEnv(num_envs=2, intersection=1, rows=1, cols=1)
+
+
+def test_copies_and_seeds_are_named() -> None:
+    for bad in (0, -1, 1.5, True):
+        with pytest.raises(mivecc_env.ConfigError, match=rf"^num_envs: must be an integer >= 1, "
+                           rf"got {bad}$"):
+            MiVeCCEdgeVectorEnv(num_envs=bad)  # type: ignore[arg-type]
+    env = MiVeCCEdgeVectorEnv(num_envs=2, rows=1, cols=1)
+    with pytest.raises(ValueError, match=r"^seed: expected an int or 2 ints, got 1 ints$"):
+        env.reset(seed=[1])
