@@ -280,3 +280,22 @@ def test_evaluate_refuses_a_repeated_seed(capsys: pytest.CaptureFixture[str]) ->
     out, err = capsys.readouterr()
     assert code == 2 and out == ""
     assert err.strip() == "mivecc: error: --seeds: each value at most once, got 0 twice"
+
+
+@pytest.mark.parametrize(("raised", "code", "message"), [
+    (KeyboardInterrupt, 130, "mivecc: interrupted\n"),
+    (BrokenPipeError, 0, ""),  # e.g. `mivecc fields | head`: quiet, like other tools
+])
+def test_interrupt_and_closed_pipe_end_without_traceback(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+    raised: type[BaseException], code: int, message: str,
+) -> None:
+    import mivecc_agents.cli as cli
+
+    def stopped(args: object) -> int:
+        raise raised
+
+    monkeypatch.setattr(cli, "cmd_fields", stopped)
+    monkeypatch.setattr(sys, "stdout", sys.stdout)  # restored after the test
+    assert cli.main(["fields"]) == code
+    assert capsys.readouterr().err == message
