@@ -385,6 +385,19 @@ class MiVeCCParallelEnv(ParallelEnv):
         lim = self._a_limit
         return arr if arr.min() >= -lim and arr.max() <= lim else None
 
+    def check_action(self, agent: str, action: Any) -> None:
+        """Raise what :meth:`step` would raise for ``action`` as ``agent``'s (a ``ValueError``
+        naming the agent), judged against its last observation; nothing if it is valid. The
+        AEC env (:func:`mivecc_env.mivecc_v0.env`) checks each action with it when it is given.
+        """
+        if agent in self._signal_index:
+            sig.check_agent_action(agent, action)
+        elif agent in self._possible:
+            self._check_action(agent, action)
+        else:
+            raise ValueError(f"actions: unknown agents [{str(agent)!r}]; agents are "
+                             f"{self.possible_agents}")
+
     def _check_action(self, agent: str, action: Any) -> np.ndarray:
         """``action`` as a float64 array, or ``ValueError`` naming the agent and the box.
 

@@ -183,6 +183,30 @@ def test_aec_env_bad_config() -> None:
         mivecc_v0.env(rows=0)
 
 
+def test_aec_env_checks_an_action_when_it_is_given() -> None:
+    aec = mivecc_v0.env(rows=1, cols=1, control="signalized", signal_agents=True, scheme="EE")
+    aec.reset(seed=0)
+    assert aec.agent_selection == "edge_0"
+    with pytest.raises(ValueError, match=r"^actions\['edge_0'\]: expected shape \(15,\)"):
+        aec.step(np.zeros(3))
+    assert aec.agent_selection == "edge_0"  # the turn was not taken
+    aec.step(np.zeros(15))
+    while aec.agent_selection != "signal_0":
+        aec.step(np.zeros(aec.action_space(aec.agent_selection).shape, np.float32))
+    with pytest.raises(ValueError, match="signal_0"):
+        aec.step(5)
+    aec.step(1)  # a valid phase: the cycle completes
+    assert aec.agent_selection == "edge_0"
+
+
+def test_parallel_env_checks_one_action(env: MiVeCCParallelEnv) -> None:
+    assert env.check_action("edge_1", np.zeros(15)) is None
+    with pytest.raises(ValueError, match=r"^actions\['cloud_0'\]: .*got shape \(15,\)"):
+        env.check_action("cloud_0", np.zeros(15))
+    with pytest.raises(ValueError, match=r"^actions: unknown agents \['edge_7'\]"):
+        env.check_action("edge_7", np.zeros(15))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "fragments"),
     [
