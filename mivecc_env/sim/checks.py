@@ -13,7 +13,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_accel", "check_env_index", "check_positive_int", "check_seed"]
+__all__ = [
+    "check_accel", "check_env_flags", "check_env_index", "check_env_indices",
+    "check_positive_int", "check_seed",
+]
 
 _SEED_RULE = "None, an integer >= 0, or a sequence of integers >= 0"
 
@@ -48,6 +51,35 @@ def check_env_index(env: Any, batch_size: int) -> int:
             return index
     raise IndexError(f"env: must be an integer in [-{batch_size}, {batch_size}) (the "
                      f"simulator holds {batch_size} environments), got {env!r}")
+
+
+def check_env_indices(env_index: Any, batch_size: int) -> np.ndarray:
+    """``env_index`` as an int64 array of distinct indices in ``[0, batch_size)`` (order
+    kept); ``ValueError`` naming ``env_index`` otherwise (a bool mask included: as integers it
+    would name environments 0 and 1)."""
+    arr = np.asarray(env_index)
+    if arr.size and arr.dtype.kind not in "iu":
+        raise ValueError(f"env_index: must be integers in [0, {batch_size - 1}], got dtype "
+                         f"{arr.dtype}")
+    arr = arr.astype(np.int64).reshape(-1)
+    if arr.size and (arr.min() < 0 or arr.max() >= batch_size):
+        raise ValueError(f"env_index: must be integers in [0, {batch_size - 1}], got "
+                         f"{arr.tolist()}")
+    if np.unique(arr).size != arr.size:
+        raise ValueError(f"env_index: repeated indices {arr.tolist()}")
+    return arr
+
+
+def check_env_flags(name: str, flags: Any, batch_size: int) -> np.ndarray | None:
+    """``None``, or ``flags`` as a ``(batch_size,)`` bool array (one flag per environment);
+    ``ValueError`` naming ``name`` otherwise."""
+    if flags is None:
+        return None
+    arr = np.asarray(flags)
+    if arr.shape != (batch_size,) or arr.dtype != np.bool_:
+        raise ValueError(f"{name}: must be a ({batch_size},) bool array (one per environment), "
+                         f"got {arr.dtype} of shape {arr.shape}")
+    return arr
 
 
 def _seed_int(name: str, value: Any) -> int:

@@ -168,8 +168,12 @@ class Simulator:
 
         Environment ``env_index[i]`` then runs exactly like a B = 1 simulator reset with
         ``seeds[i]``; the other environments continue untouched.
+
+        Raises:
+            ValueError: ``env_index`` not distinct integers in ``[0, B)``, or not one seed per
+                index.
         """
-        envs = np.asarray(env_index, dtype=np.int64).reshape(-1)
+        envs = checks.check_env_indices(env_index, self.batch_size)
         if envs.size == 0:
             return
         if self.controller is not None:
@@ -353,17 +357,19 @@ class Simulator:
             signal_phase: (B, n_intersections) phase a signal agent wants green (0 east-west,
                 1 north-south), -1 where the configured controller decides (signalized only;
                 timing enforced by ``sim/signal_control.py``).
-            raw_edge: (B,) bool: in these environments the edge action replaces the rule's
-                action unmodified (``end_node.fuse``; the released trainer's exploration).
+            raw_edge: (B,) bool array: in these environments the edge action replaces the
+                rule's action unmodified (``end_node.fuse``; the released trainer's
+                exploration).
 
         Raises:
             ValueError: an action array of another shape than ``(B, capacity)`` (capacity
                 grows during ``step``: size the arrays from ``sim.capacity`` every step), not
-                numeric, or holding +-inf.
+                numeric, or holding +-inf; ``raw_edge`` not a (B,) bool array.
         """
         shape = self.active.shape
         edge_accel = checks.check_accel("edge_accel", edge_accel, shape)
         cloud_accel = checks.check_accel("cloud_accel", cloud_accel, shape)
+        raw_edge = checks.check_env_flags("raw_edge", raw_edge, self.batch_size)
         if signal_phase is not None and self.signal_phases is None:
             raise ValueError("signal_phase: only under control='signalized', got control="
                              f"{self.config.control!r}")
@@ -668,6 +674,7 @@ class Simulator:
     # ------------------------------------------------------------------------------------
     def vehicle_table(self, env: int = 0) -> dict[str, np.ndarray]:
         """Arrays describing the vehicles of one environment (for rendering and tests)."""
+        env = checks.check_env_index(env, self.batch_size)
         m = self.active[env]
         lane, s = self.lane[env, m], self.s[env, m]
         return {

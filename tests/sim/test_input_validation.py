@@ -197,3 +197,33 @@ def test_action_that_cannot_become_an_array_names_argument() -> None:
     with pytest.raises(ValueError, match=r"^cloud_accel: must be a numeric array of shape "
                        r"\(2, \d+\) \(batch_size, capacity\), got Unconvertible"):
         sim.step(cloud_accel=Unconvertible())
+
+
+def test_reset_at_names_bad_environment_indices() -> None:
+    sim = _sim()
+    for bad, message in (([5], r"must be integers in \[0, 1\], got \[5\]"),
+                         ([-1], r"must be integers in \[0, 1\], got \[-1\]"),
+                         ([0, 0], r"repeated indices \[0, 0\]"),
+                         (np.array([True, False]), r"must be integers in \[0, 1\], got dtype bool"),
+                         ([0.0], r"must be integers in \[0, 1\], got dtype float64")):
+        with pytest.raises(ValueError, match=rf"^env_index: {message}$"):
+            sim.reset_at(bad, [1] * len(bad))
+    sim.reset_at([], [])  # nothing to restart
+
+
+def test_raw_edge_must_be_one_bool_per_environment() -> None:
+    sim = _sim()
+    for bad, got in ((np.ones(3, bool), r"bool of shape \(3,\)"),
+                     (np.ones(2, int), r"int64 of shape \(2,\)"),
+                     (True, r"bool of shape \(\)")):
+        with pytest.raises(ValueError, match=rf"^raw_edge: must be a \(2,\) bool array \(one per "
+                           rf"environment\), got {got}$"):
+            sim.step(raw_edge=bad)
+    sim.step(raw_edge=np.array([True, False]))
+
+
+def test_vehicle_table_names_an_environment_the_simulator_lacks() -> None:
+    sim = _sim()
+    assert set(sim.vehicle_table(1)) == {"vid", "lane", "s", "v", "a", "xy"}
+    with pytest.raises(IndexError, match=r"^env: must be an integer in \[-2, 2\)"):
+        sim.vehicle_table(2)
