@@ -40,7 +40,7 @@ from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.actions import checked_action
 from mivecc_env.cloud_hold import HeldCloudCommands, decision_steps
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
-from mivecc_env.sim import cloud_view, edge_selection, graph_kernel, reward_kernel, sections
+from mivecc_env.sim import checks, cloud_view, edge_selection, graph_kernel, reward_kernel, sections
 from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import (
     StateGraphs,
@@ -544,21 +544,8 @@ class BatchedMiVeCCEnv:
         return int(self._seed_rngs[b].integers(0, _SEED_HIGH))
 
     def _env_indices(self, env_index: ArrayLike) -> NDArray[np.int64]:
-        idx = np.asarray(env_index)
-        if idx.dtype == bool:
-            if idx.shape != (self.batch_size,):
-                raise ValueError(f"env_index: a bool mask must have shape ({self.batch_size},), "
-                                 f"got {idx.shape}")
-            return np.flatnonzero(idx)
-        if idx.size and not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError(f"env_index: expected integer indices or a bool mask, got {idx.dtype}")
-        idx = idx.astype(np.int64).reshape(-1)
-        if idx.size and (idx.min() < 0 or idx.max() >= self.batch_size):
-            raise ValueError(f"env_index: indices must be in [0, {self.batch_size - 1}], "
-                             f"got {idx.tolist()}")
-        if np.unique(idx).size != idx.size:
-            raise ValueError(f"env_index: repeated indices {idx.tolist()}")
-        return np.sort(idx)
+        """Sorted distinct indices of ``env_index`` (indices or a (B,) bool mask)."""
+        return np.sort(checks.check_env_indices(env_index, self.batch_size, mask_ok=True))
 
     @staticmethod
     def _seed_list(seed: Any, n: int, name: str) -> list[int]:

@@ -53,18 +53,25 @@ def check_env_index(env: Any, batch_size: int) -> int:
                      f"simulator holds {batch_size} environments), got {env!r}")
 
 
-def check_env_indices(env_index: Any, batch_size: int) -> np.ndarray:
+def check_env_indices(env_index: Any, batch_size: int, mask_ok: bool = False) -> np.ndarray:
     """``env_index`` as an int64 array of distinct indices in ``[0, batch_size)`` (order
-    kept); ``ValueError`` naming ``env_index`` otherwise (a bool mask included: as integers it
-    would name environments 0 and 1)."""
+    kept); ``ValueError`` naming ``env_index`` otherwise.
+
+    With ``mask_ok``, a ``(batch_size,)`` bool mask is accepted too (its ``True`` entries);
+    without, a bool array is refused (as integers it would name environments 0 and 1).
+    """
     arr = np.asarray(env_index)
+    rule = f"integers in [0, {batch_size - 1}]" + (
+        f" or a ({batch_size},) bool mask" if mask_ok else "")
+    if mask_ok and arr.dtype == np.bool_:
+        if arr.shape != (batch_size,):
+            raise ValueError(f"env_index: must be {rule}, got a bool mask of shape {arr.shape}")
+        return np.flatnonzero(arr)
     if arr.size and arr.dtype.kind not in "iu":
-        raise ValueError(f"env_index: must be integers in [0, {batch_size - 1}], got dtype "
-                         f"{arr.dtype}")
+        raise ValueError(f"env_index: must be {rule}, got dtype {arr.dtype}")
     arr = arr.astype(np.int64).reshape(-1)
     if arr.size and (arr.min() < 0 or arr.max() >= batch_size):
-        raise ValueError(f"env_index: must be integers in [0, {batch_size - 1}], got "
-                         f"{arr.tolist()}")
+        raise ValueError(f"env_index: must be {rule}, got {arr.tolist()}")
     if np.unique(arr).size != arr.size:
         raise ValueError(f"env_index: repeated indices {arr.tolist()}")
     return arr

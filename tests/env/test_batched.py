@@ -254,9 +254,11 @@ def test_more_bad_input_names_the_argument() -> None:
     with pytest.raises(ValueError,
                        match=r"^raw_edge: expected one bool or 2 bools, got shape \(3,\)$"):
         env.step(raw_edge=[True, False, True])
-    with pytest.raises(ValueError, match=r"^env_index: expected integer indices or a bool mask, "
-                       r"got float64$"):
+    with pytest.raises(ValueError, match=r"^env_index: must be integers in \[0, 1\] or a \(2,\) "
+                       r"bool mask, got dtype float64$"):
         env.reset_at([0.0])
+    with pytest.raises(ValueError, match=r"^env_index: .*, got a bool mask of shape \(3,\)"):
+        env.reset_at([True, False, True])
     with pytest.raises(ValueError, match=r"^env_index: repeated indices \[1, 1\]$"):
         env.reset_at([1, 1])
     with pytest.raises(ValueError, match=r"^seed: expected an int or 2 ints, got 'ab'$"):
