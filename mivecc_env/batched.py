@@ -256,13 +256,10 @@ class BatchedMiVeCCEnv:
                 seed sequence (fresh entropy before the first seeded reset).
         """
         envs = np.arange(self.batch_size)
-        if seed is not None:
-            if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
-                if seed < 0:
-                    raise ValueError(f"seed: must be an integer >= 0, got {int(seed)}")
-                seeds = [int(seed) + b for b in range(self.batch_size)]
-            else:
-                seeds = self._seed_list(seed, self.batch_size, "seed")
+        seeds = checks.check_seed(seed, self.batch_size)
+        if seeds is not None:
+            if isinstance(seeds, int):
+                seeds = [seeds + b for b in range(self.batch_size)]
             self._seed_rngs = [np.random.default_rng(s) for s in seeds]
         self.sim.reset([self._next_sim_seed(b) for b in envs.tolist()])
         self._chunk_start[:] = 0
@@ -288,10 +285,11 @@ class BatchedMiVeCCEnv:
         envs = self._env_indices(env_index)
         if not self._started:
             raise RuntimeError("reset_at: call reset() first")
-        if seed is not None:
-            if isinstance(seed, int | np.integer) and not isinstance(seed, bool):
-                seed = [int(seed)]
-            for b, s in zip(envs.tolist(), self._seed_list(seed, envs.size, "seed"), strict=True):
+        seeds = checks.check_seed(seed, envs.size)
+        if isinstance(seeds, int):  # one int: for one restarted environment
+            seeds = checks.check_seed([seeds], envs.size)
+        if seeds is not None:
+            for b, s in zip(envs.tolist(), seeds, strict=True):
                 self._seed_rngs[b] = np.random.default_rng(s)
         last = self._last
         self.sim.reset_at(envs, [self._next_sim_seed(b) for b in envs.tolist()])
@@ -546,18 +544,6 @@ class BatchedMiVeCCEnv:
     def _env_indices(self, env_index: ArrayLike) -> NDArray[np.int64]:
         """Sorted distinct indices of ``env_index`` (indices or a (B,) bool mask)."""
         return np.sort(checks.check_env_indices(env_index, self.batch_size, mask_ok=True))
-
-    @staticmethod
-    def _seed_list(seed: Any, n: int, name: str) -> list[int]:
-        try:
-            seeds = [int(s) for s in seed]
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"{name}: expected an int or {n} ints, got {seed!r}") from err
-        if len(seeds) != n:
-            raise ValueError(f"{name}: expected {n} seeds, got {len(seeds)}")
-        if any(s < 0 for s in seeds):
-            raise ValueError(f"{name}: seeds must be >= 0, got {seeds}")
-        return seeds
 
     def _checked(
         self, action: ArrayLike | None, name: str, shape: tuple[int, ...]

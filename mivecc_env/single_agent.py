@@ -32,6 +32,7 @@ from mivecc_env.actions import checked_action
 from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import ConfigError
 from mivecc_env.parallel_env import MiVeCCParallelEnv, edge_agent
+from mivecc_env.sim import checks
 
 
 class MiVeCCEdgeEnv(gymnasium.Env):
@@ -153,11 +154,9 @@ class MiVeCCEdgeVectorEnv(VectorEnv):
         if seed is None:
             seeds = [self._draw_seed(i) for i in range(self.num_envs)]
         else:
-            seeds = ([int(seed) + i for i in range(self.num_envs)]
-                     if isinstance(seed, int | np.integer) else [int(x) for x in seed])
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"seed: expected an int or {self.num_envs} ints, "
-                                 f"got {len(seeds)} ints")
+            seeds = checks.check_seed(seed, self.num_envs)
+            if isinstance(seeds, int):
+                seeds = [seeds + i for i in range(self.num_envs)]
             self._rngs = [seeding.np_random(x)[0] for x in seeds]
         self._autoreset[:] = False
         out = self.env.reset(seed=seeds)

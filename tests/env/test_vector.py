@@ -82,5 +82,7 @@ def test_copies_and_seeds_are_named() -> None:
                            rf"got {bad}$"):
             MiVeCCEdgeVectorEnv(num_envs=bad)  # type: ignore[arg-type]
     env = MiVeCCEdgeVectorEnv(num_envs=2, rows=1, cols=1)
-    with pytest.raises(ValueError, match=r"^seed: expected an int or 2 ints, got 1 ints$"):
+    with pytest.raises(ValueError, match=r"^seed: need one seed per environment \(2\), got 1$"):
         env.reset(seed=[1])
+    with pytest.raises(ValueError, match=r"^seed: must be None, an integer >= 0"):
+        env.reset(seed=["a", "b"])
