@@ -198,7 +198,7 @@ def pretrained_path(kind: str, model: str = "paper", safety_shield: bool = False
 
     Raises:
         ValueError: an unknown ``kind`` or ``model`` (a misspelt model would otherwise find
-            no shipped policy and evaluate with zero actions).
+            no shipped policy).
     """
     if kind not in ("edge", "cloud"):
         raise ValueError(f"kind: must be 'edge' or 'cloud', got {kind!r}")

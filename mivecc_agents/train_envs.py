@@ -3,13 +3,16 @@ PettingZoo wrapper in a ``SerialEnv``, one factory per collector worker."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from functools import partial
 from typing import Any
 
+import numpy as np
+
 from mivecc_agents.presets import TrainPreset
 from mivecc_agents.stages import GROUPS, TrainingError
-from mivecc_env.config import ConfigError, from_overrides
+from mivecc_env.config import field_range
 
 __all__ = ["density_list", "env_factory", "env_groups", "make_env", "make_native_env",
            "worker_env_fns"]
@@ -75,23 +78,20 @@ def density_list(densities: float | Sequence[float]) -> list[float]:
     """The training densities [veh/lane/h] as a list of floats.
 
     Raises:
-        TrainingError: none given, or one that is not a number in the config's range of
+        TrainingError: none given, or one that is not a number in the range of the config's
             ``density_vplh`` (the message names ``densities`` and that range).
     """
-    items = [densities] if isinstance(densities, int | float) else list(densities)
+    scalar = isinstance(densities, int | float | np.number | str)
+    items = [densities] if scalar else list(densities)
     if not items:
         raise TrainingError("at least one density is needed")
-    dens = []
+    rng = field_range("density_vplh")
     for d in items:
-        try:
-            from_overrides(None, density=d)
-            dens.append(float(d))
-        except (ConfigError, TypeError, ValueError) as exc:
-            rule = str(exc).removeprefix("density_vplh: ").split(", got ")[0] + " veh/lane/h"
-            if not isinstance(exc, ConfigError):
-                rule = "must be a number [veh/lane/h]"
-            raise TrainingError(f"densities: each {rule}, got {d!r}") from None
-    return dens
+        number = isinstance(d, int | float | np.number) and not isinstance(d, bool)
+        if not (number and math.isfinite(d) and rng.contains(d)):
+            raise TrainingError(f"densities: each must be {rng.describe()} veh/lane/h, "
+                                f"got {d!r}")
+    return [float(d) for d in items]
 
 
 def env_factory(
