@@ -82,6 +82,15 @@ class MiVeCCEdgesParallelEnv(ParallelEnv):
                            f"{self.possible_agents}")
         return agent
 
+    def check_action(self, agent: str, action: Any) -> None:
+        """Raise what :meth:`step` would raise for ``action`` as ``agent``'s (the full env's
+        :meth:`~mivecc_env.parallel_env.MiVeCCParallelEnv.check_action`, ``cloud_0``
+        refused); nothing if it is valid."""
+        if agent not in self.possible_agents:
+            raise ValueError(f"actions: unknown agents [{str(agent)!r}]; agents are "
+                             f"{self.possible_agents}")
+        self._env.check_action(agent, action)
+
     def reset(
         self, seed: int | None = None, options: dict | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, dict]]:

@@ -13,9 +13,9 @@ from __future__ import annotations
 from typing import Any
 
 from pettingzoo.utils import wrappers
-from pettingzoo.utils.conversions import parallel_to_aec
 from pettingzoo.utils.env import AECEnv
 
+from mivecc_env.aec import checked_aec
 from mivecc_env.edge_view import MiVeCCEdgesParallelEnv
 
 
@@ -25,8 +25,9 @@ def parallel_env(**overrides: Any) -> MiVeCCEdgesParallelEnv:
 
 
 def raw_env(**overrides: Any) -> AECEnv:
-    """The AEC version of :func:`parallel_env`."""
-    return parallel_to_aec(parallel_env(**overrides))
+    """The AEC version of :func:`parallel_env`, each action checked when it is given
+    (:mod:`mivecc_env.aec`)."""
+    return checked_aec(parallel_env(**overrides))
 
 
 def env(**overrides: Any) -> AECEnv:

@@ -11,9 +11,9 @@ from __future__ import annotations
 from typing import Any
 
 from pettingzoo.utils import wrappers
-from pettingzoo.utils.conversions import parallel_to_aec_wrapper
 from pettingzoo.utils.env import AECEnv
 
+from mivecc_env.aec import checked_aec
 from mivecc_env.parallel_env import MiVeCCParallelEnv
 
 
@@ -22,26 +22,10 @@ def parallel_env(**overrides: Any) -> MiVeCCParallelEnv:
     return MiVeCCParallelEnv(**overrides)
 
 
-class _ActionCheckingAEC(parallel_to_aec_wrapper):
-    """PettingZoo's parallel-to-AEC conversion that checks each action when it is given.
-
-    The conversion collects the actions of a cycle and steps the parallel env after the last
-    agent's turn, so a bad action was reported one or more turns late; here ``step`` raises
-    at once (the parallel env's rule and message, :meth:`MiVeCCParallelEnv.check_action`)
-    and the turn is not taken.
-    """
-
-    def step(self, action: Any) -> None:
-        agent = self.agent_selection
-        if action is not None and not (self.terminations[agent] or self.truncations[agent]):
-            self.env.check_action(agent, action)
-        super().step(action)
-
-
 def raw_env(**overrides: Any) -> AECEnv:
     """The AEC version of :func:`parallel_env` (agents act in turn, one step per cycle), as
     PettingZoo's ``parallel_to_aec`` builds it, each action checked when it is given."""
-    return wrappers.OrderEnforcingWrapper(_ActionCheckingAEC(parallel_env(**overrides)))
+    return checked_aec(parallel_env(**overrides))
 
 
 def env(**overrides: Any) -> AECEnv:

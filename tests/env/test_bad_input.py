@@ -199,6 +199,21 @@ def test_aec_env_checks_an_action_when_it_is_given() -> None:
     assert aec.agent_selection == "edge_0"
 
 
+def test_edges_aec_env_checks_an_action_when_it_is_given() -> None:
+    from mivecc_env import mivecc_edges_v0
+
+    aec = mivecc_edges_v0.env(rows=1, cols=2)
+    aec.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^actions\['edge_0'\]: .*got shape \(60,\)"):
+        aec.step(np.zeros(60))
+    assert aec.agent_selection == "edge_0"
+    aec.step(np.zeros(15))
+    aec.step(np.zeros(15))
+    assert aec.agent_selection == "edge_0"  # the cycle completed
+    with pytest.raises(ValueError, match=r"^actions: unknown agents \['cloud_0'\]"):
+        mivecc_edges_v0.parallel_env(rows=1, cols=2).check_action("cloud_0", np.zeros(60))
+
+
 def test_parallel_env_checks_one_action(env: MiVeCCParallelEnv) -> None:
     assert env.check_action("edge_1", np.zeros(15)) is None
     with pytest.raises(ValueError, match=r"^actions\['cloud_0'\]: .*got shape \(15,\)"):

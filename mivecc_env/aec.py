@@ -1,0 +1,34 @@
+"""The AEC versions of the parallel environments: PettingZoo's conversion, each action checked
+when it is given.
+
+PettingZoo's ``parallel_to_aec`` collects the actions of a cycle and steps the parallel env
+after the last agent's turn, so a bad action was reported one or more turns late, by the turn of
+another agent. :class:`ActionCheckingAEC` asks the parallel env (its ``check_action(agent,
+action)``: the rule and message of its ``step``) at once; the turn is not taken.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pettingzoo.utils import wrappers
+from pettingzoo.utils.conversions import parallel_to_aec_wrapper
+from pettingzoo.utils.env import AECEnv, ParallelEnv
+
+__all__ = ["ActionCheckingAEC", "checked_aec"]
+
+
+class ActionCheckingAEC(parallel_to_aec_wrapper):
+    """``parallel_to_aec_wrapper`` whose ``step`` checks the action before taking the turn."""
+
+    def step(self, action: Any) -> None:
+        agent = self.agent_selection
+        if action is not None and not (self.terminations[agent] or self.truncations[agent]):
+            self.env.check_action(agent, action)
+        super().step(action)
+
+
+def checked_aec(par_env: ParallelEnv) -> AECEnv:
+    """The AEC env of ``par_env`` as ``parallel_to_aec`` builds it (order enforced), with
+    :class:`ActionCheckingAEC` in place of PettingZoo's conversion."""
+    return wrappers.OrderEnforcingWrapper(ActionCheckingAEC(par_env))
