@@ -49,6 +49,7 @@ from mivecc_env import mivecc_v0
 from mivecc_env.config import ConfigError
 from mivecc_env.no_data import mark_no_data
 from mivecc_env.parallel_env import CLOUD_AGENT
+from mivecc_env.sim.checks import check_positive_int
 
 #: A coordinator policy: (obs_batch (n, K, K, 3), mask (n, K)) -> actions (n, K).
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -511,8 +512,7 @@ def stacking_is_exact(policy: Policy | None, n_envs: int, n_agents: int, k: int)
             (each at least 1: a ``ValueError`` names the first that is not).
     """
     for name, value in (("n_envs", n_envs), ("n_agents", n_agents), ("k", k)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-            raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+        check_positive_int(name, value)
     if policy is None or n_envs == 1:
         return policy is not None
     rng = np.random.default_rng(0)

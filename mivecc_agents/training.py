@@ -34,7 +34,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictSequential
@@ -75,6 +74,7 @@ from mivecc_agents.train_log import (
     plot_learning_curve,
     tensorboard_writer,
 )
+from mivecc_env.sim.checks import check_int_at_least
 
 __all__ = [
     "GROUPS",
@@ -510,8 +510,10 @@ def _check_counts(**counts: tuple[Any, int, bool]) -> None:
     for name, (value, low, none_ok) in counts.items():
         if value is None and none_ok:
             continue
-        if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < low:
-            raise TrainingError(f"{name}: must be an integer >= {low}, got {value!r}")
+        try:
+            check_int_at_least(name, value, low)
+        except ValueError as exc:
+            raise TrainingError(str(exc)) from None
 
 
 def _train(

@@ -15,7 +15,7 @@ import numpy as np
 
 __all__ = [
     "check_accel", "check_env_flags", "check_env_index", "check_env_indices",
-    "check_positive_int", "check_seed",
+    "check_int_at_least", "check_positive_int", "check_seed",
 ]
 
 _SEED_RULE = "None, an integer >= 0, or a sequence of integers >= 0"
@@ -34,9 +34,15 @@ def _integer_at_least(name: str, value: Any, minimum: int, rule: str) -> int:
     return out
 
 
+def check_int_at_least(name: str, value: Any, minimum: int) -> int:
+    """``value`` as a Python int >= ``minimum`` (numpy integers accepted, bools not);
+    ``ValueError`` naming ``name`` otherwise."""
+    return _integer_at_least(name, value, minimum, f"an integer >= {minimum}")
+
+
 def check_positive_int(name: str, value: Any) -> int:
     """``value`` as a Python int >= 1 (numpy integers accepted); ``ValueError`` otherwise."""
-    return _integer_at_least(name, value, 1, "an integer >= 1")
+    return check_int_at_least(name, value, 1)
 
 
 def check_env_index(env: Any, batch_size: int) -> int:
