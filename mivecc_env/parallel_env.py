@@ -390,13 +390,9 @@ class MiVeCCParallelEnv(ParallelEnv):
         naming the agent), judged against its last observation; nothing if it is valid. The
         AEC env (:func:`mivecc_env.mivecc_v0.env`) checks each action with it when it is given.
         """
-        if agent in self._signal_index:
-            sig.check_agent_action(agent, action)
-        elif agent in self._possible:
-            self._check_action(agent, action)
-        else:
-            raise ValueError(f"actions: unknown agents [{str(agent)!r}]; agents are "
-                             f"{self.possible_agents}")
+        actions = {agent: action}
+        self._columns(actions)  # step's checks of the agents and of edge and cloud actions
+        self._phases(actions)  # a signal agent's phase
 
     def _check_action(self, agent: str, action: Any) -> np.ndarray:
         """``action`` as a float64 array, or ``ValueError`` naming the agent and the box.
