@@ -95,6 +95,24 @@ def _n_cells(size: float) -> int:
 
 _BACKGROUND_CACHE: dict[tuple, UInt8Array] = {}
 
+#: Largest frame :func:`render_rgb` draws [pixels] (1e8 pixels: 300 MB of RGB).
+MAX_FRAME_PX = 100_000_000
+
+
+def _check_scale(network: GridNetwork, px_per_m: float) -> None:
+    """Refuse a scale that is not a finite number > 0 or whose frame exceeds
+    :data:`MAX_FRAME_PX` (naming the largest scale this network allows)."""
+    if isinstance(px_per_m, bool) or not (isinstance(px_per_m, int | float | np.number)
+                                           and 0 < px_per_m < math.inf):
+        raise ValueError(f"px_per_m: must be a finite number > 0 [pixels/m], got {px_per_m!r}")
+    width_m, height_m = network.extent_m
+    if width_m * height_m * px_per_m**2 > MAX_FRAME_PX:
+        largest = math.sqrt(MAX_FRAME_PX / (width_m * height_m))
+        raise ValueError(
+            f"px_per_m: {px_per_m!r} makes a frame of {width_m * px_per_m:.0f} x "
+            f"{height_m * px_per_m:.0f} px; at most {largest:.3g} on this "
+            f"{width_m:.0f} m x {height_m:.0f} m network ({MAX_FRAME_PX:.0e} px)")
+
 
 def _pixel_span(lo_m: float, hi_m: float, px_per_m: float, n: int) -> slice:
     """Pixel index range ``[floor(lo), ceil(hi))`` of the metre interval, clipped to ``n``."""
@@ -159,9 +177,13 @@ def render_rgb(sim: Simulator, env: int = 0, px_per_m: float = 1.0) -> UInt8Arra
         ``(H, W, 3)`` uint8 array, north up. Each vehicle is a filled square of
         ``max(VEHICLE_MIN_PX, round(2 m * px_per_m))`` pixels centred on its position,
         coloured by speed through :data:`SPEED_LUT` (see :func:`speed_to_lut_index`).
+
+    Raises:
+        ValueError: ``px_per_m`` not a finite number > 0, or a frame over
+            :data:`MAX_FRAME_PX` pixels (the message gives the largest scale allowed).
+        IndexError: ``env`` outside the batch.
     """
-    if not px_per_m > 0:
-        raise ValueError(f"px_per_m: must be > 0, got {px_per_m!r}")
+    _check_scale(sim.network, px_per_m)
     env = check_env_index(env, sim.batch_size)
     network = sim.network
     img = _background(network, px_per_m).copy()

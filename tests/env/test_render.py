@@ -78,6 +78,22 @@ def test_frame_size_follows_grid_and_scale() -> None:
         render_rgb(sim, px_per_m=0.0)
 
 
+@pytest.mark.parametrize("scale", [float("nan"), float("inf"), -1.0, True, "2"])
+def test_scale_not_a_finite_positive_number_is_named(scale: object) -> None:
+    sim = Simulator(MiVeCCConfig(rows=1, cols=1), seed=0)
+    with pytest.raises(ValueError, match=r"^px_per_m: must be a finite number > 0"):
+        render_rgb(sim, px_per_m=scale)  # type: ignore[arg-type]
+
+
+def test_frame_over_the_pixel_budget_is_refused_before_drawing() -> None:
+    # 3x3: 600 m x 600 m; 1e8 px allow at most 16.7 px/m (a 1e6 px/m frame used to raise
+    # numpy's MemoryError while allocating it)
+    sim = Simulator(MiVeCCConfig(rows=3, cols=3), seed=0)
+    with pytest.raises(ValueError, match=r"^px_per_m: 1000000.0 makes a frame of .* at most 16.7 "):
+        render_rgb(sim, px_per_m=1e6)
+    assert render_rgb(sim, px_per_m=0.05).shape == (30, 30, 3)  # the budget leaves small ones
+
+
 def test_vehicle_square_has_minimum_size_and_background_is_not_mutated() -> None:
     empty_before = render_rgb(Simulator(CFG, seed=0), px_per_m=0.5)
     frame = render_rgb(one_vehicle(s=100.0), px_per_m=0.5)
