@@ -1,0 +1,298 @@
+"""Batch invariance across random feature combinations: a fuzz check of the batched env.
+
+The project promises the same trajectory for the same seed and config, whatever the batch
+size. The tests check that for chosen configurations; this script checks it for random
+combinations of every choice field of :class:`~mivecc_env.config.MiVeCCConfig` (model preset,
+scheme, control mode and signal controller, safety shield, cloud graphs, populations, views and
+rewards, the released model's switches, rule readings, ...), a few numeric fields (graph sizes,
+fusion weights, cloud period), grid sizes, mixed demands, continuous runs, signal agents,
+partial resets and the released trainer's raw edge actions.
+
+Each case runs ``B`` environments as one :class:`~mivecc_env.batched.BatchedMiVeCCEnv` and
+each of them alone (``B = 1``) with the same seed, demand and actions, and compares at every
+step, bit for bit, every array the env returns (graphs, masks, rewards and their terms, signal
+agents' arrays, flags, step counts) and the episode summary. It also checks that no vehicle is
+lost (arrived = queued + in network + exited + collided, per environment, from the simulator's
+own counters) and that observations are finite and inside [-1, 1].
+
+A case whose drawn configuration the config refuses (two fields that do not go together) is
+counted as ``refused`` with the config's message, not run. Any difference or exception
+(``error``) exits 1
+and names the case; ``--start N --cases 1`` reruns that case alone.
+
+Writes ``batch_fuzz.jsonl`` (one line per case) and ``batch_fuzz.md`` (the summary) under
+``--out`` and prints the summary.
+
+Usage:
+    python benchmarks/batch_fuzz.py --cases 400 --start 0 --out runs/batch_fuzz
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from mivecc_env import ConfigError, cli_args
+from mivecc_env.batched import BatchedMiVeCCEnv, BatchStep
+from mivecc_env.config import MiVeCCConfig
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_OUT = HERE / "results" / "batch_fuzz"
+
+#: Choice fields drawn by the preset (``model``) or separately; every other choice field of
+#: the config is drawn from its choices (half of the cases leave each at its default).
+NOT_DRAWN = ("model",)
+#: Numeric fields drawn in a quarter of the cases each: (low, high, integer).
+NUMERIC: dict[str, tuple[float, float, bool]] = {
+    "k_edge": (2, 20, True),
+    "k_cloud": (2, 80, True),
+    "di_n": (1, 10, True),
+    "cloud_period": (1, 5, True),
+    "omega": (0.0, 1.0, False),
+    "eta": (0.5, 10.0, False),
+}
+#: Control modes whose batch may restart single environments (``reset_at``).
+RESETTABLE = ("unsignalized", "signalized")
+
+
+def choice_fields() -> dict[str, tuple[Any, ...]]:
+    """Every choice field of the config and its choices (from the field metadata)."""
+    return {f.name: f.metadata["choices"] for f in dataclasses.fields(MiVeCCConfig)
+            if "choices" in f.metadata and f.name not in NOT_DRAWN}
+
+
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """One drawn case (everything :func:`run_case` needs, reproducible from ``index``)."""
+
+    index: int
+    overrides: dict[str, Any]
+    batch_size: int
+    seeds: list[int]
+    densities: list[float]
+    steps: int
+    continuous: bool
+    signal_agents: bool
+
+
+def draw_case(index: int) -> Case:
+    """The case of number ``index`` (its own generator: the same case on every machine)."""
+    rng = np.random.default_rng([index, 0x6D697665])
+    kw: dict[str, Any] = {"model": ("paper", "released")[int(rng.integers(2))]}
+    for name, choices in choice_fields().items():
+        if rng.random() < 0.5:
+            kw[name] = choices[int(rng.integers(len(choices)))]
+    for name, (lo, hi, integer) in NUMERIC.items():
+        if rng.random() < 0.25:
+            kw[name] = int(rng.integers(lo, hi + 1)) if integer else float(rng.uniform(lo, hi))
+    kw["rows"], kw["cols"] = (int(x) for x in rng.integers(1, 4, 2))
+    period = int(kw.get("cloud_period", 1))
+    kw["max_steps"] = max(period, int(rng.integers(40, 200)) // period * period)
+    batch = int(rng.integers(2, 5))
+    return Case(
+        index=index,
+        overrides=kw,
+        batch_size=batch,
+        seeds=[int(s) for s in rng.integers(0, 2**31, batch)],
+        densities=[round(float(d), 1) for d in rng.uniform(300.0, 3000.0, batch)],
+        steps=int(rng.integers(60, 300)),
+        continuous=bool(rng.random() < 0.2),
+        signal_agents=kw.get("control") == "signalized" and bool(rng.random() < 0.5),
+    )
+
+
+def differences(batch: BatchStep, b: int, single: BatchStep) -> list[str]:
+    """Names of the arrays of environment ``b`` of ``batch`` that differ, bit for bit, from
+    environment 0 of ``single`` (a field present in one and ``None`` in the other differs)."""
+    out = []
+    for field in dataclasses.fields(BatchStep):
+        x, y = getattr(batch, field.name), getattr(single, field.name)
+        if x is None or y is None:
+            if (x is None) != (y is None):
+                out.append(field.name)
+            continue
+        pairs = ({k: (x[k][b], y[k][0]) for k in x.keys() | y.keys() if k in x and k in y}
+                 if isinstance(x, dict) else {"": (x[b], y[0])})
+        if isinstance(x, dict) and x.keys() != y.keys():
+            out.append(f"{field.name} (keys)")
+        for key, (u, v) in pairs.items():
+            u, v = np.asarray(u), np.asarray(v)
+            if u.dtype != v.dtype or u.shape != v.shape or u.tobytes() != v.tobytes():
+                out.append(f"{field.name}[{key}]" if key else field.name)
+    return out
+
+
+def _problems(env: BatchedMiVeCCEnv, out: BatchStep, b: int) -> list[str]:
+    """Accounting and observation-bound violations of environment ``b``."""
+    sim, found = env.sim, []
+    held = sim.queued[b] + sim.in_network[b] + sim.exited[b] + sim.collided[b]
+    if held != sim.arrived[b]:
+        found.append(f"accounting: arrived {sim.arrived[b]}, accounted for {held}")
+    for name in ("edge_obs", "cloud_obs"):
+        obs = getattr(out, name)
+        if obs is not None and not (np.isfinite(obs[b]).all() and np.abs(obs[b]).max() <= 1.0):
+            found.append(f"{name}: not finite or outside [-1, 1]")
+    return found
+
+
+def run_case(case: Case) -> dict[str, Any]:
+    """Run one case (module docstring); returns its record (``status``: ``same``,
+    ``refused`` or ``differs``, and the workload); an exception of the env propagates."""
+    record: dict[str, Any] = {"case": case.index, **dataclasses.asdict(case)}
+    del record["index"]
+    extra: dict[str, Any] = {"continuous": True} if case.continuous else {}
+    if case.signal_agents:
+        extra["signal_agents"] = True
+    try:
+        batch = BatchedMiVeCCEnv(batch_size=case.batch_size, densities=case.densities,
+                                 **case.overrides, **extra)
+    except ConfigError as exc:
+        return record | {"status": "refused", "detail": str(exc)}
+    singles = [BatchedMiVeCCEnv(batch_size=1, densities=[d], **case.overrides, **extra)
+               for d in case.densities]
+    n, a_max = case.batch_size, batch.config.a_max_mps2
+    rngs = [np.random.default_rng([case.index, 1, b]) for b in range(n)]
+    shared = np.random.default_rng([case.index, 2])  # batch-wide choices
+    resettable = batch.config.control in RESETTABLE and not case.continuous
+    out = batch.reset(seed=case.seeds)
+    refs = [env.reset(seed=s) for env, s in zip(singles, case.seeds, strict=True)]
+    vehicle_steps = restarts = 0
+    for t in range(case.steps + 1):
+        summary = batch.summary()
+        for b in range(n):
+            found = [f"step {t}: {name}" for name in differences(out, b, refs[b])]
+            alone = singles[b].summary()
+            found += [f"step {t}: summary {k}" for k in summary
+                      if summary[k][b].tobytes() != alone[k][0].tobytes()]
+            found += [f"step {t}: {p}" for p in _problems(batch, out, b)]
+            if found:
+                return record | {"status": "differs", "env": b, "detail": "; ".join(found[:5]),
+                                 "vehicle_steps": vehicle_steps}
+        vehicle_steps += int(batch.sim.in_network.sum())
+        if t == case.steps:
+            break
+        edge = np.stack([r.uniform(-a_max, a_max, (batch.n_edge, batch.k_edge)) for r in rngs])
+        cloud = np.stack([r.uniform(-a_max, a_max, batch.cloud_action_shape) for r in rngs])
+        raw = np.array([r.random() < 0.3 for r in rngs])
+        signal = (np.stack([r.integers(-1, 2, batch.n_edge) for r in rngs])
+                  if case.signal_agents else None)
+        u = shared.random()
+        edge = None if u < 0.1 else edge  # no edge action: the rules decide
+        cloud = None if 0.1 <= u < 0.2 else cloud
+        out = batch.step(edge, cloud, signal_action=signal, raw_edge=raw)
+        refs = [env.step(None if edge is None else edge[b:b + 1],
+                         None if cloud is None else cloud[b:b + 1],
+                         signal_action=None if signal is None else signal[b:b + 1],
+                         raw_edge=raw[b:b + 1])
+                for b, env in enumerate(singles)]
+        chosen = set(np.flatnonzero(out.truncated).tolist())
+        if resettable:
+            chosen |= {b for b in range(n) if rngs[b].random() < 0.01}
+        if chosen:
+            envs = sorted(chosen)
+            restarts += len(envs)
+            if case.continuous:
+                out = batch.start_chunk(envs)
+                for b in envs:
+                    refs[b] = singles[b].start_chunk([0])
+            elif resettable:
+                out = batch.reset_at(envs)
+                for b in envs:
+                    refs[b] = singles[b].reset()
+    return record | {"status": "same", "vehicle_steps": vehicle_steps, "restarts": restarts,
+                     "env_steps": n * case.steps}
+
+
+def summarise(records: list[dict[str, Any]], command: str, wall_s: float) -> str:
+    """Markdown summary of the cases."""
+    status = Counter(r["status"] for r in records)
+    ran = [r for r in records if r["status"] != "refused"]
+    lines = [
+        f"Command: `{command}`", "",
+        f"{len(records)} cases in {wall_s:.0f} s: " + ", ".join(
+            f"{status[s]} {s}" for s in ("same", "differs", "error", "refused") if status[s])
+        + ".", "",
+        "| cases run | environments | env-steps | vehicle-steps | restarts (reset_at or next "
+        "chunk) | continuous | signal agents |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+        f"| {len(ran)} | {sum(r['batch_size'] for r in ran)} | "
+        f"{sum(r.get('env_steps', 0) for r in ran):,} | "
+        f"{sum(r.get('vehicle_steps', 0) for r in ran):,} | "
+        f"{sum(r.get('restarts', 0) for r in ran):,} | "
+        f"{sum(r['continuous'] for r in ran)} | {sum(r['signal_agents'] for r in ran)} |",
+        "", "Cases run per value of each drawn field (preset: left at the model preset's value):",
+        "", "| field | cases per value |", "|---|---|",
+    ]
+    for name in ("model", *choice_fields(), *NUMERIC):
+        values = Counter(str(r["overrides"].get(name, "preset")) for r in ran)
+        if name in NUMERIC:
+            drawn = sum(v for k, v in values.items() if k != "preset")
+            values = Counter({"drawn": drawn, "preset": values["preset"]})
+        lines.append(f"| `{name}` | " + ", ".join(f"{k} {v}" for k, v in sorted(values.items()))
+                     + " |")
+    bad = [r for r in records if r["status"] in ("differs", "error")]
+    if bad:
+        lines += ["", "Differences:", ""] + [
+            f"- case {r['case']} env {r['env']}: {r['detail']} (rerun: `--start {r['case']} "
+            "--cases 1`)" for r in bad]
+    refused = Counter(r["detail"].split(":")[0] for r in records if r["status"] == "refused")
+    if refused:
+        lines += ["", "Refused by the config (fields that do not go together), by field: "
+                  + ", ".join(f"{k} {v}" for k, v in sorted(refused.items())) + "."]
+    return "\n".join(lines) + "\n"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--cases", type=cli_args.count(1), default=100,
+                   help="number of cases (default 100)")
+    p.add_argument("--start", type=cli_args.count(0), default=0,
+                   help="number of the first case (default 0)")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT,
+                   help=f"output folder (default {DEFAULT_OUT.relative_to(HERE.parent)})")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the cases, write and print the summary; 1 if any case differs."""
+    args = build_parser().parse_args(argv)
+    out_dir = cli_args.writable_dir("--out", args.out)
+    command = "python benchmarks/batch_fuzz.py " + " ".join(
+        sys.argv[1:] if argv is None else list(argv))
+    t0 = time.perf_counter()
+    records = []
+    with (out_dir / "batch_fuzz.jsonl").open("w") as log:
+        cases = range(args.start, args.start + args.cases)
+        for index in tqdm(cases, disable=args.no_progress, unit="case"):
+            case = draw_case(index)
+            try:
+                record = run_case(case)
+            except Exception as exc:  # a finding, not a crash: the case is named
+                record = {"case": index, **dataclasses.asdict(case), "status": "error",
+                          "env": "-", "detail": f"{type(exc).__name__}: {exc}"}
+                del record["index"]
+            records.append(record)
+            log.write(json.dumps(record) + "\n")
+            log.flush()
+            if record["status"] in ("differs", "error"):
+                tqdm.write(f"case {index} env {record['env']}: {record['detail']}")
+    text = summarise(records, command.strip(), time.perf_counter() - t0)
+    (out_dir / "batch_fuzz.md").write_text(text)
+    print(text, end="")
+    return 1 if any(r["status"] in ("differs", "error") for r in records) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,89 @@
+"""Batch invariance across random feature combinations (``benchmarks/batch_fuzz.py``)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mivecc_env.batched import BatchedMiVeCCEnv
+from tests.scripts import load_benchmark
+
+batch_fuzz = load_benchmark("batch_fuzz")
+
+
+@pytest.mark.parametrize("index", range(8))
+def test_random_combinations_run_alike_in_a_batch_and_alone(index: int) -> None:
+    record = batch_fuzz.run_case(batch_fuzz.draw_case(index))
+    assert record["status"] in ("same", "refused"), record.get("detail")
+    if record["status"] == "same":
+        assert record["vehicle_steps"] > 0  # vehicles were compared, not empty networks
+
+
+@pytest.mark.slow
+def test_two_hundred_combinations(tmp_path: Path) -> None:
+    assert batch_fuzz.main(["--cases", "200", "--start", "8", "--out", str(tmp_path),
+                            "--no-progress"]) == 0
+
+
+def test_cases_are_reproducible_and_cover_the_choice_fields() -> None:
+    assert batch_fuzz.draw_case(5) == batch_fuzz.draw_case(5)
+    assert batch_fuzz.draw_case(5) != batch_fuzz.draw_case(6)
+    drawn = {name for i in range(40) for name in batch_fuzz.draw_case(i).overrides}
+    assert set(batch_fuzz.choice_fields()) <= drawn
+    assert {"scheme", "control", "safety_shield", "cloud_graphs", "sections"} <= drawn
+
+
+def test_a_difference_is_named() -> None:
+    env = BatchedMiVeCCEnv(batch_size=2, rows=1, cols=2, density=1800, scheme="EEC")
+    out = env.reset(seed=[3, 4])
+    for _ in range(30):
+        out = env.step()
+    alone = BatchedMiVeCCEnv(batch_size=1, rows=1, cols=2, density=1800, scheme="EEC")
+    single = alone.reset(seed=4)
+    for _ in range(30):
+        single = alone.step()
+    assert batch_fuzz.differences(out, 1, single) == []
+    changed = dataclasses.replace(single, cloud_reward=single.cloud_reward + 1e-12,
+                                  edge_terms={**single.edge_terms,
+                                              "reward_sv": single.edge_terms["reward_sv"] + 1.0})
+    assert set(batch_fuzz.differences(out, 1, changed)) >= {"cloud_reward",
+                                                             "edge_terms[reward_sv]"}
+    # environment 0 of the batch ran another seed: its graphs differ from the single run's
+    assert "cloud_obs" in batch_fuzz.differences(out, 0, single)
+
+
+def test_a_lost_vehicle_is_reported() -> None:
+    env = BatchedMiVeCCEnv(batch_size=2, rows=1, cols=1, density=1800)
+    out = env.reset(seed=0)
+    for _ in range(50):
+        out = env.step()
+    assert batch_fuzz._problems(env, out, 0) == []
+    env.sim.exited[0] += 1  # a vehicle counted twice
+    assert batch_fuzz._problems(env, out, 0)[0].startswith("accounting")
+    out.edge_obs[1, 0, 0, 0, 0] = np.nan
+    assert batch_fuzz._problems(env, out, 1) == ["edge_obs: not finite or outside [-1, 1]"]
+
+
+def test_script_writes_its_summary_and_one_line_per_case(tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture) -> None:
+    assert batch_fuzz.main(["--cases", "2", "--start", "3", "--out", str(tmp_path),
+                            "--no-progress"]) == 0
+    lines = (tmp_path / "batch_fuzz.jsonl").read_text().splitlines()
+    assert [json.loads(line)["case"] for line in lines] == [3, 4]
+    text = (tmp_path / "batch_fuzz.md").read_text()
+    assert "2 cases in" in text and "| `scheme` |" in text
+    assert text in capsys.readouterr().out
+
+
+def test_an_error_of_the_env_is_a_finding(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(case: object) -> dict:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(batch_fuzz, "run_case", broken)
+    assert batch_fuzz.main(["--cases", "1", "--out", str(tmp_path), "--no-progress"]) == 1
+    text = (tmp_path / "batch_fuzz.md").read_text()
+    assert "1 error" in text and "RuntimeError: boom (rerun: `--start 0 --cases 1`)" in text
