@@ -11,7 +11,10 @@ partial resets and the released trainer's raw edge actions.
 Each case runs ``B`` environments as one :class:`~mivecc_env.batched.BatchedMiVeCCEnv` and
 each of them alone (``B = 1``) with the same seed, demand and actions, and compares at every
 step, bit for bit, every array the env returns (graphs, masks, rewards and their terms, signal
-agents' arrays, flags, step counts) and the episode summary. It also checks that no vehicle is
+agents' arrays, flags, step counts) and the episode summary; outside continuous runs the
+PettingZoo ``ParallelEnv`` runs environment 0 too (its actions as agent dicts, with no raw edge
+actions there) and its observations, masks, rewards, reward terms, truncations and summary are
+compared with the batch's. It also checks that no vehicle is
 lost (arrived = queued + in network + exited + collided, per environment, from the simulator's
 own counters) and that observations are finite and inside [-1, 1].
 
@@ -42,7 +45,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from mivecc_env import ConfigError, cli_args
+from mivecc_env import ConfigError, cli_args, mivecc_v0
 from mivecc_env.batched import BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import MiVeCCConfig
 
@@ -132,6 +135,60 @@ def differences(batch: BatchStep, b: int, single: BatchStep) -> list[str]:
     return out
 
 
+def parallel_differences(pz: Any, step: tuple, out: BatchStep, summary: dict[str, Any]
+                         ) -> list[str]:
+    """What differs between a PettingZoo ``ParallelEnv`` step (``(obs, rewards, truncations,
+    infos)``, rewards and truncations ``None`` after a reset) and environment 0 of ``out``
+    (``summary``: the batch's summary)."""
+    obs, rewards, truncations, infos = step
+    found = []
+    wanted: dict[str, tuple] = {}
+    for i, agent in enumerate(pz.edge_agents):
+        wanted[agent] = (out.edge_obs, (0, i), out.edge_mask, out.edge_reward, out.edge_terms)
+    if out.cloud_obs is not None:  # the batch observes the cloud under EEC only
+        wanted["cloud_0"] = (out.cloud_obs, (0,), out.cloud_mask, out.cloud_reward,
+                             out.cloud_terms)
+    for agent, (graphs, at, masks, reward, terms) in wanted.items():
+        if obs[agent].tobytes() != graphs[at].tobytes():
+            found.append(f"{agent} observation")
+        if infos[agent]["mask"].tobytes() != masks[at].tobytes():
+            found.append(f"{agent} mask")
+        if rewards is not None and not _same(rewards[agent], reward[at]):
+            found.append(f"{agent} reward")
+        found += [f"{agent} {k}" for k in terms if rewards is not None
+                  and not _same(infos[agent][k], terms[k][at])]
+    if out.signal_obs is not None:
+        for i, agent in enumerate(pz.signal_agents):
+            if obs[agent].tobytes() != out.signal_obs[0, i].tobytes():
+                found.append(f"{agent} observation")
+            if rewards is not None and not _same(rewards[agent], out.signal_reward[0, i]):
+                found.append(f"{agent} reward")
+    if truncations is not None and any(v != bool(out.truncated[0]) for v in truncations.values()):
+        found.append("truncations")
+    found += [f"summary {k}" for k, v in summary.items()
+              if k in infos["cloud_0"] and not _same(infos["cloud_0"][k], v[0])]
+    return found
+
+
+def _same(x: Any, y: Any) -> bool:
+    """Two numbers equal as float64 bits (NaN equals NaN)."""
+    return np.float64(x).tobytes() == np.float64(y).tobytes()
+
+
+def _agent_actions(pz: Any, edge: np.ndarray | None, cloud: np.ndarray | None,
+                   signal: np.ndarray | None) -> dict[str, Any]:
+    """Environment 0's batch actions as the ParallelEnv's agent dict (left out: no action)."""
+    actions: dict[str, Any] = {}
+    if edge is not None:
+        actions |= {agent: edge[0, i] for i, agent in enumerate(pz.edge_agents)}
+    if cloud is not None:
+        actions["cloud_0"] = cloud[0]
+    if signal is not None:
+        actions |= {agent: int(signal[0, i]) for i, agent in enumerate(pz.signal_agents)
+                    if signal[0, i] >= 0}
+    return actions
+
+
 def _problems(env: BatchedMiVeCCEnv, out: BatchStep, b: int) -> list[str]:
     """Accounting and observation-bound violations of environment ``b``."""
     sim, found = env.sim, []
@@ -160,12 +217,18 @@ def run_case(case: Case) -> dict[str, Any]:
         return record | {"status": "refused", "detail": str(exc)}
     singles = [BatchedMiVeCCEnv(batch_size=1, densities=[d], **case.overrides, **extra)
                for d in case.densities]
+    pz = None if case.continuous else mivecc_v0.parallel_env(
+        density=case.densities[0], signal_agents=case.signal_agents, **case.overrides)
     n, a_max = case.batch_size, batch.config.a_max_mps2
     rngs = [np.random.default_rng([case.index, 1, b]) for b in range(n)]
     shared = np.random.default_rng([case.index, 2])  # batch-wide choices
     resettable = batch.config.control in RESETTABLE and not case.continuous
     out = batch.reset(seed=case.seeds)
     refs = [env.reset(seed=s) for env, s in zip(singles, case.seeds, strict=True)]
+    pz_step = None
+    if pz is not None:
+        o, info = pz.reset(seed=case.seeds[0])
+        pz_step = (o, None, None, info)
     vehicle_steps = restarts = 0
     for t in range(case.steps + 1):
         summary = batch.summary()
@@ -175,6 +238,9 @@ def run_case(case: Case) -> dict[str, Any]:
             found += [f"step {t}: summary {k}" for k in summary
                       if summary[k][b].tobytes() != alone[k][0].tobytes()]
             found += [f"step {t}: {p}" for p in _problems(batch, out, b)]
+            if b == 0 and pz_step is not None:
+                found += [f"step {t}: ParallelEnv {name}"
+                          for name in parallel_differences(pz, pz_step, out, summary)]
             if found:
                 return record | {"status": "differs", "env": b, "detail": "; ".join(found[:5]),
                                  "vehicle_steps": vehicle_steps}
@@ -184,6 +250,7 @@ def run_case(case: Case) -> dict[str, Any]:
         edge = np.stack([r.uniform(-a_max, a_max, (batch.n_edge, batch.k_edge)) for r in rngs])
         cloud = np.stack([r.uniform(-a_max, a_max, batch.cloud_action_shape) for r in rngs])
         raw = np.array([r.random() < 0.3 for r in rngs])
+        raw[0] &= pz is None  # the ParallelEnv has no raw edge actions
         signal = (np.stack([r.integers(-1, 2, batch.n_edge) for r in rngs])
                   if case.signal_agents else None)
         u = shared.random()
@@ -195,6 +262,11 @@ def run_case(case: Case) -> dict[str, Any]:
                          signal_action=None if signal is None else signal[b:b + 1],
                          raw_edge=raw[b:b + 1])
                 for b, env in enumerate(singles)]
+        if pz is not None:
+            o, rew, _, trunc, info = pz.step(_agent_actions(pz, edge, cloud, signal))
+            pz_step = (o, rew, trunc, info)
+            if out.truncated[0] and not resettable:
+                pz = pz_step = None  # its episode ended; the batch's environment 0 runs on
         chosen = set(np.flatnonzero(out.truncated).tolist())
         if resettable:
             chosen |= {b for b in range(n) if rngs[b].random() < 0.01}
@@ -209,6 +281,9 @@ def run_case(case: Case) -> dict[str, Any]:
                 out = batch.reset_at(envs)
                 for b in envs:
                     refs[b] = singles[b].reset()
+                if pz is not None and 0 in chosen:
+                    o, info = pz.reset()
+                    pz_step = (o, None, None, info)
     return record | {"status": "same", "vehicle_steps": vehicle_steps, "restarts": restarts,
                      "env_steps": n * case.steps}
 

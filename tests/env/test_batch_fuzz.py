@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mivecc_env import mivecc_v0
 from mivecc_env.batched import BatchedMiVeCCEnv
 from tests.scripts import load_benchmark
 
@@ -87,3 +88,24 @@ def test_an_error_of_the_env_is_a_finding(tmp_path: Path, monkeypatch: pytest.Mo
     assert batch_fuzz.main(["--cases", "1", "--out", str(tmp_path), "--no-progress"]) == 1
     text = (tmp_path / "batch_fuzz.md").read_text()
     assert "1 error" in text and "RuntimeError: boom (rerun: `--start 0 --cases 1`)" in text
+
+
+def test_the_parallel_env_is_compared_with_environment_0() -> None:
+    kw = {"rows": 1, "cols": 2, "density": 2100, "scheme": "EEC"}
+    batch = BatchedMiVeCCEnv(batch_size=2, **kw)
+    pz = mivecc_v0.parallel_env(**kw)
+    out = batch.reset(seed=[7, 8])
+    obs, infos = pz.reset(seed=7)
+    for _ in range(60):
+        out = batch.step()
+        obs, rewards, _, truncations, infos = pz.step({})
+    step = (obs, rewards, truncations, infos)
+    assert batch_fuzz.parallel_differences(pz, step, out, batch.summary()) == []
+    obs = {**obs, "edge_1": obs["edge_1"] + 1.0}
+    rewards = {**rewards, "cloud_0": rewards["cloud_0"] + 1e-9}
+    found = batch_fuzz.parallel_differences(pz, (obs, rewards, truncations, infos), out,
+                                            batch.summary())
+    assert found == ["edge_1 observation", "cloud_0 reward"]
+    other = batch_fuzz.parallel_differences(pz, step, dataclasses.replace(
+        out, truncated=~out.truncated), batch.summary())
+    assert other == ["truncations"]
