@@ -18,6 +18,11 @@ compared with the batch's. It also checks that no vehicle is
 lost (arrived = queued + in network + exited + collided, per environment, from the simulator's
 own counters) and that observations are finite and inside [-1, 1].
 
+Each case also records a SHA-256 digest of the batch's whole trajectory (every array it
+returned and its summary, at every step). ``--against RUN.jsonl`` compares the digests with
+another run's, case by case: run once as usual and once with ``MIVECC_NO_NUMBA=1`` to check
+that the compiled kernels equal the numpy reference paths on every combination.
+
 A case whose drawn configuration the config refuses (two fields that do not go together) is
 counted as ``refused`` with the config's message, not run. Any difference or exception
 (``error``) exits 1
@@ -28,12 +33,15 @@ Writes ``batch_fuzz.jsonl`` (one line per case) and ``batch_fuzz.md`` (the summa
 
 Usage:
     python benchmarks/batch_fuzz.py --cases 400 --start 0 --out runs/batch_fuzz
+    MIVECC_NO_NUMBA=1 python benchmarks/batch_fuzz.py --cases 400 --start 0 \
+        --out runs/batch_fuzz_numpy --against runs/batch_fuzz/batch_fuzz.jsonl
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import hashlib
 import json
 import sys
 import time
@@ -48,6 +56,7 @@ from tqdm import tqdm
 from mivecc_env import ConfigError, cli_args, mivecc_v0
 from mivecc_env.batched import BatchedMiVeCCEnv, BatchStep
 from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim._numba import HAVE_NUMBA
 
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "batch_fuzz"
@@ -189,6 +198,20 @@ def _agent_actions(pz: Any, edge: np.ndarray | None, cloud: np.ndarray | None,
     return actions
 
 
+def _digest_update(digest: Any, out: BatchStep, summary: dict[str, np.ndarray]) -> None:
+    """Add every array of a batch step and the batch's summary to ``digest``."""
+    for field in dataclasses.fields(BatchStep):
+        value = getattr(out, field.name)
+        items = sorted(value.items()) if isinstance(value, dict) else [("", value)]
+        for key, array in items:
+            if array is not None:
+                digest.update(f"{field.name}{key}".encode())
+                digest.update(np.ascontiguousarray(array).tobytes())
+    for key in sorted(summary):
+        digest.update(key.encode())
+        digest.update(summary[key].tobytes())
+
+
 def _problems(env: BatchedMiVeCCEnv, out: BatchStep, b: int) -> list[str]:
     """Accounting and observation-bound violations of environment ``b``."""
     sim, found = env.sim, []
@@ -230,8 +253,10 @@ def run_case(case: Case) -> dict[str, Any]:
         o, info = pz.reset(seed=case.seeds[0])
         pz_step = (o, None, None, info)
     vehicle_steps = restarts = 0
+    digest = hashlib.sha256()
     for t in range(case.steps + 1):
         summary = batch.summary()
+        _digest_update(digest, out, summary)
         for b in range(n):
             found = [f"step {t}: {name}" for name in differences(out, b, refs[b])]
             alone = singles[b].summary()
@@ -285,18 +310,34 @@ def run_case(case: Case) -> dict[str, Any]:
                     o, info = pz.reset()
                     pz_step = (o, None, None, info)
     return record | {"status": "same", "vehicle_steps": vehicle_steps, "restarts": restarts,
-                     "env_steps": n * case.steps}
+                     "env_steps": n * case.steps, "digest": digest.hexdigest()}
 
 
-def summarise(records: list[dict[str, Any]], command: str, wall_s: float) -> str:
-    """Markdown summary of the cases."""
+def compare_digests(records: list[dict[str, Any]], other: Path) -> tuple[int, list[int]]:
+    """(cases compared, cases whose trajectory digest differs) against another run's
+    ``batch_fuzz.jsonl``: the cases both ran to the end (status ``same``)."""
+    theirs = {}
+    for line in other.read_text().splitlines():
+        record = json.loads(line)
+        if record.get("digest"):
+            theirs[record["case"]] = record["digest"]
+    pairs = [(r["case"], r["digest"], theirs[r["case"]]) for r in records
+             if r.get("digest") and r["case"] in theirs]
+    return len(pairs), [case for case, mine, them in pairs if mine != them]
+
+
+def summarise(records: list[dict[str, Any]], command: str, wall_s: float,
+              against: tuple[Path, int, list[int]] | None = None) -> str:
+    """Markdown summary of the cases (``against``: the other run, cases compared, cases
+    whose digest differs)."""
     status = Counter(r["status"] for r in records)
     ran = [r for r in records if r["status"] != "refused"]
     lines = [
         f"Command: `{command}`", "",
         f"{len(records)} cases in {wall_s:.0f} s: " + ", ".join(
             f"{status[s]} {s}" for s in ("same", "differs", "error", "refused") if status[s])
-        + ".", "",
+        + f". Kernels: {'numba' if HAVE_NUMBA else 'numpy reference paths (MIVECC_NO_NUMBA)'}.",
+        "",
         "| cases run | environments | env-steps | vehicle-steps | restarts (reset_at or next "
         "chunk) | continuous | signal agents |",
         "|---:|---:|---:|---:|---:|---:|---:|",
@@ -320,6 +361,10 @@ def summarise(records: list[dict[str, Any]], command: str, wall_s: float) -> str
         lines += ["", "Differences:", ""] + [
             f"- case {r['case']} env {r['env']}: {r['detail']} (rerun: `--start {r['case']} "
             "--cases 1`)" for r in bad]
+    if against is not None:
+        path, compared, differ = against
+        lines += ["", f"Trajectory digests against `{path}`: {compared - len(differ)} of "
+                  f"{compared} cases equal" + (f"; differ: {differ}" if differ else "") + "."]
     refused = Counter(r["detail"].split(":")[0] for r in records if r["status"] == "refused")
     if refused:
         lines += ["", "Refused by the config (fields that do not go together), by field: "
@@ -336,6 +381,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="number of the first case (default 0)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT,
                    help=f"output folder (default {DEFAULT_OUT.relative_to(HERE.parent)})")
+    p.add_argument("--against", type=cli_args.existing_file, default=None,
+                   help="another run's batch_fuzz.jsonl: compare the trajectory digests case "
+                   "by case (e.g. a MIVECC_NO_NUMBA=1 run against a numba one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
@@ -363,10 +411,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             log.flush()
             if record["status"] in ("differs", "error"):
                 tqdm.write(f"case {index} env {record['env']}: {record['detail']}")
-    text = summarise(records, command.strip(), time.perf_counter() - t0)
+    against = None
+    if args.against is not None:
+        against = (args.against, *compare_digests(records, args.against))
+    text = summarise(records, command.strip(), time.perf_counter() - t0, against)
     (out_dir / "batch_fuzz.md").write_text(text)
     print(text, end="")
-    return 1 if any(r["status"] in ("differs", "error") for r in records) else 0
+    failed = any(r["status"] in ("differs", "error") for r in records)
+    return 1 if failed or (against is not None and against[2]) else 0
 
 
 if __name__ == "__main__":

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -109,3 +112,39 @@ def test_the_parallel_env_is_compared_with_environment_0() -> None:
     other = batch_fuzz.parallel_differences(pz, step, dataclasses.replace(
         out, truncated=~out.truncated), batch.summary())
     assert other == ["truncations"]
+
+
+def test_digests_repeat_and_a_changed_one_fails_the_comparison(tmp_path: Path) -> None:
+    first = batch_fuzz.run_case(batch_fuzz.draw_case(1))
+    assert first["status"] == "same"
+    assert batch_fuzz.run_case(batch_fuzz.draw_case(1))["digest"] == first["digest"]
+    assert batch_fuzz.run_case(batch_fuzz.draw_case(3))["digest"] != first["digest"]
+    other = tmp_path / "other.jsonl"
+    other.write_text(json.dumps({**first, "digest": "0" * 64}) + "\n")
+    assert batch_fuzz.compare_digests([first], other) == (1, [1])
+    other.write_text(json.dumps(first) + "\n")
+    assert batch_fuzz.compare_digests([first], other) == (1, [])
+    out = tmp_path / "run"
+    assert batch_fuzz.main(["--cases", "1", "--start", "1", "--out", str(out), "--no-progress",
+                            "--against", str(other)]) == 0
+    assert "1 of 1 cases equal" in (out / "batch_fuzz.md").read_text()
+    other.write_text(json.dumps({**first, "digest": "0" * 64}) + "\n")
+    assert batch_fuzz.main(["--cases", "1", "--start", "1", "--out", str(out), "--no-progress",
+                            "--against", str(other)]) == 1
+    assert "0 of 1 cases equal; differ: [1]" in (out / "batch_fuzz.md").read_text()
+
+
+def test_numpy_reference_paths_give_the_kernels_trajectories(tmp_path: Path) -> None:
+    # the same cases in this process (numba) and in one with MIVECC_NO_NUMBA=1: equal digests
+    assert batch_fuzz.main(["--cases", "4", "--out", str(tmp_path / "numba"),
+                            "--no-progress"]) == 0
+    script = Path(batch_fuzz.__file__)
+    done = subprocess.run(
+        [sys.executable, str(script), "--cases", "4", "--out", str(tmp_path / "numpy"),
+         "--no-progress", "--against", str(tmp_path / "numba" / "batch_fuzz.jsonl")],
+        env={**os.environ, "MIVECC_NO_NUMBA": "1",
+             "PYTHONPATH": str(script.parents[1])}, capture_output=True, text=True,
+        timeout=600, check=False)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "Kernels: numpy reference paths" in done.stdout
+    assert "4 of 4 cases equal." in done.stdout
