@@ -4,8 +4,9 @@ The project promises the same trajectory for the same seed and config, whatever 
 size. The tests check that for chosen configurations; this script checks it for random
 combinations of every choice field of :class:`~mivecc_env.config.MiVeCCConfig` (model preset,
 scheme, control mode and signal controller, safety shield, cloud graphs, populations, views and
-rewards, the released model's switches, rule readings, ...), a few numeric fields (graph sizes,
-fusion weights, cloud period), grid sizes, mixed demands, continuous runs, signal agents,
+rewards, the released model's switches, rule readings, ...), numeric fields (geometry, vehicle
+and speed bounds, time step, headways, graph sizes, fusion weights, cloud period, gates,
+reward weights, comparator parameters), grid sizes, mixed demands, continuous runs, signal agents,
 partial resets and the released trainer's raw edge actions.
 
 Each case runs ``B`` environments as one :class:`~mivecc_env.batched.BatchedMiVeCCEnv` and
@@ -64,14 +65,38 @@ DEFAULT_OUT = HERE / "results" / "batch_fuzz"
 #: Choice fields drawn by the preset (``model``) or separately; every other choice field of
 #: the config is drawn from its choices (half of the cases leave each at its default).
 NOT_DRAWN = ("model",)
-#: Numeric fields drawn in a quarter of the cases each: (low, high, integer).
+#: Numeric fields, each drawn in 15 % of the cases from a moderate part of its range:
+#: (low, high, integer). Values that do not fit together are refused by the config.
 NUMERIC: dict[str, tuple[float, float, bool]] = {
+    "segment_length_m": (60.0, 300.0, False),
+    "lane_offset_m": (2.0, 8.0, False),
+    "vehicle_length_m": (1.0, 5.0, False),
+    "v_min_mps": (0.0, 8.0, False),
+    "v_max_mps": (8.0, 20.0, False),
+    "v_init_mps": (0.0, 15.0, False),
+    "a_max_mps2": (1.0, 5.0, False),
+    "dt_s": (0.05, 0.2, False),
+    "min_headway_s": (0.0, 3.0, False),
+    "entry_clearance_m": (0.0, 30.0, False),
+    "control_radius_m": (30.0, 150.0, False),
+    "projection_window_m": (20.0, 150.0, False),
     "k_edge": (2, 20, True),
     "k_cloud": (2, 80, True),
     "di_n": (1, 10, True),
-    "cloud_period": (1, 5, True),
-    "omega": (0.0, 1.0, False),
     "eta": (0.5, 10.0, False),
+    "omega": (0.0, 1.0, False),
+    "cloud_period": (1, 5, True),
+    "shield_gap_m": (0.0, 10.0, False),
+    "same_lane_rule_horizon_m": (0.0, 100.0, False),
+    "edge_sv_gate": (-10.0, 10.0, False),
+    "reward_sv_weight": (0.0, 1.0, False),
+    "collision_penalty": (0.0, 20.0, False),
+    "signal_green_s": (5.0, 60.0, False),
+    "signal_yellow_s": (0.0, 5.0, False),
+    "actuated_gap_s": (0.5, 5.0, False),
+    "reservation_buffer_s": (0.0, 1.0, False),
+    "optimisation_max_vehicles": (1, 8, True),
+    "idm_time_headway_s": (0.5, 2.0, False),
 }
 #: Control modes whose batch may restart single environments (``reset_at``).
 RESETTABLE = ("unsignalized", "signalized")
@@ -105,7 +130,7 @@ def draw_case(index: int) -> Case:
         if rng.random() < 0.5:
             kw[name] = choices[int(rng.integers(len(choices)))]
     for name, (lo, hi, integer) in NUMERIC.items():
-        if rng.random() < 0.25:
+        if rng.random() < 0.15:
             kw[name] = int(rng.integers(lo, hi + 1)) if integer else float(rng.uniform(lo, hi))
     kw["rows"], kw["cols"] = (int(x) for x in rng.integers(1, 4, 2))
     period = int(kw.get("cloud_period", 1))
