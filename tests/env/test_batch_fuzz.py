@@ -115,36 +115,42 @@ def test_the_parallel_env_is_compared_with_environment_0() -> None:
 
 
 def test_digests_repeat_and_a_changed_one_fails_the_comparison(tmp_path: Path) -> None:
-    first = batch_fuzz.run_case(batch_fuzz.draw_case(1))
-    assert first["status"] == "same"
-    assert batch_fuzz.run_case(batch_fuzz.draw_case(1))["digest"] == first["digest"]
-    assert batch_fuzz.run_case(batch_fuzz.draw_case(3))["digest"] != first["digest"]
+    ran = [r for r in map(batch_fuzz.run_case, map(batch_fuzz.draw_case, range(6)))
+           if r["status"] == "same"]
+    assert len(ran) >= 2  # the drawn configurations are mostly accepted
+    first, second = ran[:2]
+    case = first["case"]
+    assert batch_fuzz.run_case(batch_fuzz.draw_case(case))["digest"] == first["digest"]
+    assert second["digest"] != first["digest"]
     other = tmp_path / "other.jsonl"
     other.write_text(json.dumps({**first, "digest": "0" * 64}) + "\n")
-    assert batch_fuzz.compare_digests([first], other) == (1, [1])
+    assert batch_fuzz.compare_digests([first], other) == (1, [case])
     other.write_text(json.dumps(first) + "\n")
     assert batch_fuzz.compare_digests([first], other) == (1, [])
     out = tmp_path / "run"
-    assert batch_fuzz.main(["--cases", "1", "--start", "1", "--out", str(out), "--no-progress",
-                            "--against", str(other)]) == 0
+    args = ["--cases", "1", "--start", str(case), "--out", str(out), "--no-progress",
+            "--against", str(other)]
+    assert batch_fuzz.main(args) == 0
     assert "1 of 1 cases equal" in (out / "batch_fuzz.md").read_text()
     other.write_text(json.dumps({**first, "digest": "0" * 64}) + "\n")
-    assert batch_fuzz.main(["--cases", "1", "--start", "1", "--out", str(out), "--no-progress",
-                            "--against", str(other)]) == 1
-    assert "0 of 1 cases equal; differ: [1]" in (out / "batch_fuzz.md").read_text()
+    assert batch_fuzz.main(args) == 1
+    assert f"0 of 1 cases equal; differ: [{case}]" in (out / "batch_fuzz.md").read_text()
 
 
 def test_numpy_reference_paths_give_the_kernels_trajectories(tmp_path: Path) -> None:
     # the same cases in this process (numba) and in one with MIVECC_NO_NUMBA=1: equal digests
-    assert batch_fuzz.main(["--cases", "4", "--out", str(tmp_path / "numba"),
+    assert batch_fuzz.main(["--cases", "6", "--out", str(tmp_path / "numba"),
                             "--no-progress"]) == 0
+    ran = sum(json.loads(line)["status"] == "same"
+              for line in (tmp_path / "numba" / "batch_fuzz.jsonl").read_text().splitlines())
+    assert ran >= 3
     script = Path(batch_fuzz.__file__)
     done = subprocess.run(
-        [sys.executable, str(script), "--cases", "4", "--out", str(tmp_path / "numpy"),
+        [sys.executable, str(script), "--cases", "6", "--out", str(tmp_path / "numpy"),
          "--no-progress", "--against", str(tmp_path / "numba" / "batch_fuzz.jsonl")],
         env={**os.environ, "MIVECC_NO_NUMBA": "1",
              "PYTHONPATH": str(script.parents[1])}, capture_output=True, text=True,
         timeout=600, check=False)
     assert done.returncode == 0, done.stdout + done.stderr
     assert "Kernels: numpy reference paths" in done.stdout
-    assert "4 of 4 cases equal." in done.stdout
+    assert f"{ran} of {ran} cases equal." in done.stdout
