@@ -22,6 +22,13 @@ key                            shape                                        dtyp
 "truncated"``
 =============================  ===========================================  ================
 
+Signal agents (``control="signalized"``, ``groups`` with ``"signal"``: the batched env's
+``signal_agents``): ``("signal", "observation")`` ``(B, n_int, 15)`` float32
+(:data:`mivecc_env.signal_agents.OBS_FEATURES`), ``("signal", "action")`` ``(B, n_int)``
+int64 in {0, 1} (the phase each intersection wants green), ``("signal", "reward")``
+``(B, n_int, 1)`` (``signal_reward``: queue or pressure), ``("signal", "info", term)`` for
+both reward terms, and the done keys.
+
 with ``g`` in ``groups`` (``edge``: ``n_g`` = number of intersections, K = ``k_edge``;
 ``cloud``: ``n_g`` = 1, K = ``k_cloud``; with ``cloud_graphs="per_lane"`` ``n_g`` = the
 number of through lanes, one agent ``cloud_<lane>`` per lane graph, each with the network's
@@ -29,7 +36,7 @@ cloud reward: there the ParallelEnv has one ``cloud_0`` with all the graphs). ``
 is the same tensor as ``(g, "info", "mask")`` (the pipeline of ``training.make_env`` copies it
 there). The episode summary (whole network) is in group ``s`` = ``cloud``, as the ParallelEnv
 puts it in ``cloud_0``'s info; when only ``edge`` is exposed, it is under ``edge`` (broadcast to the
-``n_edge`` agents without a copy).
+``n_edge`` agents without a copy), when only ``signal``, under ``signal``.
 
 Partial resets: TorchRL passes ``"_reset"`` (B, 1); only those environments restart
 (:meth:`BatchedMiVeCCEnv.reset_at`, each with the next seed of its own sequence) while the
@@ -55,12 +62,15 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from mivecc_env import signal_agents as signal_agents_mod
 from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv, BatchStep
 from mivecc_env.metrics import SUMMARY_KEYS
 
-__all__ = ["GROUPS", "MiVeCCTorchEnv"]
+__all__ = ["ALL_GROUPS", "GROUPS", "MiVeCCTorchEnv"]
 
 GROUPS: tuple[str, ...] = ("edge", "cloud")
+#: Every group the env can expose: the coordinators and the signal agents.
+ALL_GROUPS: tuple[str, ...] = (*GROUPS, signal_agents_mod.SIGNAL_GROUP)
 
 
 class MiVeCCTorchEnv(EnvBase):
@@ -70,7 +80,9 @@ class MiVeCCTorchEnv(EnvBase):
         batch_size: number of environments B (default: ``len(densities)``, else 1).
         densities: demand of each environment [veh/lane/h], B values (one batch may mix
             densities); default: the config's density for all.
-        groups: agent groups to expose, a subset of ``("edge", "cloud")`` (default both).
+        groups: agent groups to expose, a subset of ``("edge", "cloud", "signal")``
+            (default ``("edge", "cloud")``); ``"signal"`` needs ``control="signalized"``.
+        signal_reward: the signal agents' reward, ``"queue"`` or ``"pressure"``.
         summary_keys: episode-summary keys to put under ``(g, "info")`` (default all of
             :data:`mivecc_env.metrics.SUMMARY_KEYS`; ``()`` for none).
         seed: if given, :meth:`set_seed` is called with it.
@@ -88,7 +100,8 @@ class MiVeCCTorchEnv(EnvBase):
             CPU and on CUDA: ``tests/agents/test_device.py``).
 
     Raises:
-        ConfigError: a bad config value, batch size or density (from the batched env).
+        ConfigError: a bad config value, batch size or density (from the batched env);
+            ``"signal"`` without ``control="signalized"``, or a bad ``signal_reward``.
         ValueError: an unknown group or summary key.
     """
 
@@ -98,6 +111,7 @@ class MiVeCCTorchEnv(EnvBase):
         *,
         densities: Sequence[float] | None = None,
         groups: Sequence[str] = GROUPS,
+        signal_reward: str = "queue",
         summary_keys: Sequence[str] = SUMMARY_KEYS,
         seed: int | None = None,
         continuous: bool = False,
@@ -107,8 +121,9 @@ class MiVeCCTorchEnv(EnvBase):
         **overrides: Any,
     ) -> None:
         groups = tuple(groups)
-        if not groups or not set(groups) <= set(GROUPS):
-            raise ValueError(f"groups: must be a non-empty subset of {GROUPS}, got {groups!r}")
+        if not groups or not set(groups) <= set(ALL_GROUPS) or len(set(groups)) < len(groups):
+            raise ValueError(f"groups: must be a non-empty subset of {ALL_GROUPS}, "
+                             f"got {groups!r}")
         bad = sorted(set(summary_keys) - set(SUMMARY_KEYS))
         if bad:
             raise ValueError(f"summary_keys: unknown {bad}; known: {list(SUMMARY_KEYS)}")
@@ -122,9 +137,11 @@ class MiVeCCTorchEnv(EnvBase):
             raise ValueError(f"raw_edge_period: must be an integer >= 0, got {raw_edge_period!r}")
         self.raw_edge_period = int(raw_edge_period)
         self._steps_taken = 0
+        signal = signal_agents_mod.SIGNAL_GROUP
         self._batched = BatchedMiVeCCEnv(
-            config, int(batch_size), densities=densities, observe=set(groups),
-            continuous=continuous, **overrides,
+            config, int(batch_size), densities=densities, observe=set(groups) - {signal},
+            continuous=continuous, signal_agents=signal in groups, signal_reward=signal_reward,
+            **overrides,
         )
         b = self._batched.batch_size
         super().__init__(device=device, batch_size=torch.Size([b]))
@@ -132,13 +149,14 @@ class MiVeCCTorchEnv(EnvBase):
         self.summary_keys = tuple(summary_keys)
         c = self._batched.config
         self.config = c
-        self._n = {"edge": c.n_intersections, "cloud": c.n_cloud_graphs}
+        self._n = {"edge": c.n_intersections, "cloud": c.n_cloud_graphs,
+                   signal: c.n_intersections}
         self._k = {"edge": c.k_edge, "cloud": c.k_cloud}
         self.group_map = {
             g: [f"{g}_{i}" for i in range(self._n[g])] for g in groups
         }
         #: The group whose infos hold the episode summary.
-        self.summary_group = "cloud" if "cloud" in groups else "edge"
+        self.summary_group = next(g for g in ("cloud", "edge", signal) if g in groups)
         #: cloud_period > 1: ``("cloud", "info", "decides")`` says whether the cloud action
         #: is used on the next step (mivecc_env.cloud_hold).
         self._holds_cloud = c.cloud_period > 1 and c.scheme == "EEC"
@@ -157,6 +175,9 @@ class MiVeCCTorchEnv(EnvBase):
         c = self.config
         obs, act, rew, done = {}, {}, {}, {}
         for g in self.groups:
+            if g == signal_agents_mod.SIGNAL_GROUP:
+                obs[g], act[g], rew[g], done[g] = self._signal_specs(b)
+                continue
             n, k = self._n[g], self._k[g]
             info = {"mask": Unbounded((b, n, k), dtype=torch.float32)}
             if g == "cloud" and self._holds_cloud:
@@ -175,19 +196,34 @@ class MiVeCCTorchEnv(EnvBase):
                 shape=(b, n),
             )
             rew[g] = Composite(reward=Unbounded((b, n, 1), dtype=torch.float32), shape=(b, n))
-            done[g] = Composite(
-                {
-                    key: Categorical(2, (b, n, 1), dtype=torch.bool)
-                    for key in ("done", "terminated", "truncated")
-                },
-                shape=(b, n),
-            )
+            done[g] = _done_spec(b, n)
         for key in ("done", "terminated", "truncated"):
             done[key] = Categorical(2, (b, 1), dtype=torch.bool)
         self.observation_spec = Composite(obs, shape=(b,))
         self.action_spec = Composite(act, shape=(b,))
         self.reward_spec = Composite(rew, shape=(b,))
         self.done_spec = Composite(done, shape=(b,))
+
+    def _signal_specs(self, b: int) -> tuple[Composite, Composite, Composite, Composite]:
+        """Observation, action, reward and done specs of the signal group."""
+        n = self._n[signal_agents_mod.SIGNAL_GROUP]
+        low, high = signal_agents_mod.observation_bounds(self.config)
+        shape = (b, n, signal_agents_mod.OBS_DIM)
+        summary = (self.summary_keys if self.summary_group == signal_agents_mod.SIGNAL_GROUP
+                   else ())
+        info = {key: Unbounded((b, n), dtype=torch.float32)
+                for key in (*signal_agents_mod.SIGNAL_REWARD_TERMS, *summary)}
+        obs = Composite(
+            observation=Bounded(torch.from_numpy(np.broadcast_to(low, shape).copy()),
+                                torch.from_numpy(np.broadcast_to(high, shape).copy()), shape,
+                                dtype=torch.float32),
+            info=Composite(info, shape=(b, n)),
+            shape=(b, n),
+        )
+        act = Composite(action=Categorical(signal_agents_mod.N_PHASES, (b, n),
+                                           dtype=torch.int64), shape=(b, n))
+        rew = Composite(reward=Unbounded((b, n, 1), dtype=torch.float32), shape=(b, n))
+        return obs, act, rew, _done_spec(b, n)
 
     # ------------------------------------------------------------------------------------
     def _set_seed(self, seed: int | None) -> None:
@@ -217,10 +253,13 @@ class MiVeCCTorchEnv(EnvBase):
         if n and edge is not None:
             raw = np.full(self.batch_size[0], self._steps_taken % n == n - 1)
         self._steps_taken += 1
+        signal = None
+        if signal_agents_mod.SIGNAL_GROUP in self.groups:
+            signal = self._action(tensordict, signal_agents_mod.SIGNAL_GROUP)
         step = self._batched.step(
             None if edge is None else edge.astype(np.float64, copy=False),
             None if cloud is None else cloud.astype(np.float64, copy=False),
-            raw_edge=raw,
+            signal_action=signal, raw_edge=raw,
         )
         return self._pack(step, with_reward=True)
 
@@ -243,6 +282,9 @@ class MiVeCCTorchEnv(EnvBase):
         out: dict[str, Any] = {"done": done, "terminated": term, "truncated": trunc}
         for g in self.groups:
             n = self._n[g]
+            if g == signal_agents_mod.SIGNAL_GROUP:
+                out[g] = self._pack_signal(step, with_reward, summary, done, term, trunc)
+                continue
             if g == "edge":
                 o, m, r, terms = step.edge_obs, step.edge_mask, step.edge_reward, step.edge_terms
             else:  # one agent per cloud graph, each with the network's reward
@@ -274,9 +316,35 @@ class MiVeCCTorchEnv(EnvBase):
             out[g] = TensorDict(td, batch_size=(b, n))
         return TensorDict(out, batch_size=(b,), device=self.device)
 
+    def _pack_signal(self, step: BatchStep, with_reward: bool, summary: dict[str, np.ndarray],
+                     done: torch.Tensor, term: torch.Tensor, trunc: torch.Tensor
+                     ) -> TensorDict:
+        """The signal group's entries of one step."""
+        b, n = self.batch_size[0], self._n[signal_agents_mod.SIGNAL_GROUP]
+        info = {k: _f32(step.signal_terms[k]) for k in signal_agents_mod.SIGNAL_REWARD_TERMS}
+        if self.summary_group == signal_agents_mod.SIGNAL_GROUP:
+            for key in self.summary_keys:
+                info[key] = _f32(summary[key])[:, None].expand(b, n)
+        td = {
+            "observation": torch.from_numpy(step.signal_obs),
+            "info": TensorDict(info, batch_size=(b, n)),
+            "done": done[:, None].expand(b, n, 1),
+            "terminated": term[:, None].expand(b, n, 1),
+            "truncated": trunc[:, None].expand(b, n, 1),
+        }
+        if with_reward:
+            td["reward"] = _f32(step.signal_reward).unsqueeze(-1)
+        return TensorDict(td, batch_size=(b, n))
+
     def close(self, *, raise_if_closed: bool = True) -> None:
         """Nothing to release (numpy arrays only)."""
         self.is_closed = True
+
+
+def _done_spec(b: int, n: int) -> Composite:
+    """The done, terminated and truncated flags of a group of ``n`` agents."""
+    return Composite({key: Categorical(2, (b, n, 1), dtype=torch.bool)
+                      for key in ("done", "terminated", "truncated")}, shape=(b, n))
 
 
 def _f32(a: np.ndarray) -> torch.Tensor:

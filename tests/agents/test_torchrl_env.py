@@ -13,7 +13,7 @@ from torchrl.envs import PettingZooWrapper, check_env_specs  # noqa: E402
 
 from mivecc_agents.torchrl_env import MiVeCCTorchEnv  # noqa: E402
 from mivecc_env import mivecc_v0  # noqa: E402
-from mivecc_env.batched import REWARD_TERMS  # noqa: E402
+from mivecc_env.batched import REWARD_TERMS, BatchedMiVeCCEnv  # noqa: E402
 from mivecc_env.metrics import SUMMARY_KEYS  # noqa: E402
 
 CFG = {"rows": 1, "cols": 2, "scheme": "EEC", "max_steps": 6}
@@ -140,4 +140,72 @@ def test_a_missing_group_action_is_named() -> None:
     td["edge", "action"] = torch.zeros(1, 1, 15)
     with pytest.raises(KeyError, match=r"\('cloud', 'action'\): missing; the env's groups "
                        r"\['edge', 'cloud'\] each need an action at every step"):
+        env.step(td)
+
+
+SIGNAL_CFG = {"rows": 1, "cols": 2, "control": "signalized", "max_steps": 100,
+              "signal_min_green_s": 1.0}
+
+
+def test_signal_group_checks_its_specs_alone_and_with_the_coordinators() -> None:
+    env = MiVeCCTorchEnv(densities=[1500.0, 2100.0], groups=("signal",), seed=0, **SIGNAL_CFG)
+    check_env_specs(env, seed=0)
+    assert env.group_map == {"signal": ["signal_0", "signal_1"]}
+    assert env.batched_env.observe == frozenset()  # no coordinator graph is built
+    spec = env.full_observation_spec
+    assert spec["signal", "observation"].shape == (2, 2, 15)
+    assert spec["signal", "info", "reward_pressure"].shape == (2, 2)
+    assert spec["signal", "info", "throughput"].shape == (2, 2)  # the summary, here alone
+    action = env.full_action_spec["signal", "action"]
+    assert action.shape == (2, 2) and action.dtype == torch.int64 and action.space.n == 2
+    both = MiVeCCTorchEnv(densities=[1500.0], groups=("edge", "signal"), seed=0, **SIGNAL_CFG)
+    check_env_specs(both, seed=0)
+    assert "throughput" not in both.full_observation_spec["signal", "info"]
+
+
+def test_signal_group_equals_the_batched_env_with_its_phases() -> None:
+    """The phases asked through the TorchRL env move the signals as the batched env's
+    ``signal_action`` does: observations, rewards and terms equal, over a partial reset."""
+    dens = [1500.0, 2400.0, 1800.0]
+    native = MiVeCCTorchEnv(densities=dens, groups=("signal",), signal_reward="pressure",
+                            **SIGNAL_CFG)
+    native.set_seed(5)
+    ref = BatchedMiVeCCEnv(batch_size=3, densities=dens, signal_agents=True,
+                           signal_reward="pressure", **SIGNAL_CFG)
+    rng = np.random.default_rng(2)
+    td = native.reset()
+    ref.reset(seed=5)  # set_seed's seeded reset; the collector's reset draws the next seeds
+    out = ref.reset()
+    phases_seen = set()
+    for _ in range(150):
+        np.testing.assert_array_equal(td["signal", "observation"].numpy(), out.signal_obs)
+        phases = (rng.random((3, 2)) < 0.9).astype(np.int64)  # mostly north-south
+        td["signal", "action"] = torch.from_numpy(phases)
+        full, td = native.step_and_maybe_reset(td)
+        out = ref.step(signal_action=phases)
+        np.testing.assert_array_equal(full["next", "signal", "reward"][..., 0].numpy(),
+                                      out.signal_reward.astype(np.float32))
+        for key, value in out.signal_terms.items():
+            np.testing.assert_array_equal(full["next", "signal", "info", key].numpy(),
+                                          value.astype(np.float32))
+        phases_seen |= set(out.signal_obs[..., 12].ravel().tolist())  # the current phase
+        if out.truncated.any():
+            out = ref.reset_at(np.flatnonzero(out.truncated))
+    assert native.batched_env.episode_steps.tolist() == ref.episode_steps.tolist()
+    assert phases_seen == {0.0, 1.0}  # the asked phases switched the signals
+
+
+def test_signal_group_refused_without_signals_and_repeated_groups() -> None:
+    from mivecc_env import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^signal_agents: only with control='signalized'"):
+        MiVeCCTorchEnv(groups=("signal",), rows=1, cols=1)
+    with pytest.raises(ValueError, match=r"^groups: must be a non-empty subset"):
+        MiVeCCTorchEnv(groups=("edge", "edge"), rows=1, cols=1)
+    env = MiVeCCTorchEnv(densities=[900.0], groups=("signal",), **SIGNAL_CFG)
+    td = env.reset()
+    with pytest.raises(KeyError, match=r"\('signal', 'action'\): missing"):
+        env.step(td)
+    td["signal", "action"] = torch.full((1, 2), 2)
+    with pytest.raises(ValueError, match="signal"):
         env.step(td)
