@@ -98,3 +98,16 @@ def test_benchmarl_example_on_cuda(algo: str, task: str) -> None:
                            "--device", "cuda"])
     assert experiment.n_iters_performed == 2
     assert {p.device.type for p in experiment.policy.parameters()} == {"cuda"}
+
+
+@pytest.mark.torchrl
+@pytest.mark.slow
+def test_torchrl_signal_dqn_example(capsys: pytest.CaptureFixture) -> None:
+    mod = load("torchrl_signal_dqn", "torchrl")
+    rows = mod.main(["--frames", "1200", "--warmup", "400", "--updates-per-batch", "5",
+                     "--eval-steps", "400", "--eval-seeds", "100"])
+    assert list(rows) == ["DQN", "fixed-time", "max-pressure"]
+    for row in rows.values():
+        assert row["avg_travel_velocity_mps"] > 0 and row["collisions"] == 0
+    printed = capsys.readouterr().out
+    assert "batch 3: 1200 frames" in printed and "max-pressure: avg travel velocity" in printed
