@@ -320,14 +320,14 @@ def run_case(case: Case) -> dict[str, Any]:
         chosen = set(np.flatnonzero(out.truncated).tolist())
         if resettable:
             chosen |= {b for b in range(n) if rngs[b].random() < 0.01}
-        if chosen:
+        if chosen and (resettable or case.continuous):  # others run on, truncated
             envs = sorted(chosen)
             restarts += len(envs)
             if case.continuous:
                 out = batch.start_chunk(envs)
                 for b in envs:
                     refs[b] = singles[b].start_chunk([0])
-            elif resettable:
+            else:
                 out = batch.reset_at(envs)
                 for b in envs:
                     refs[b] = singles[b].reset()

@@ -154,3 +154,12 @@ def test_numpy_reference_paths_give_the_kernels_trajectories(tmp_path: Path) -> 
     assert done.returncode == 0, done.stdout + done.stderr
     assert "Kernels: numpy reference paths" in done.stdout
     assert f"{ran} of {ran} cases equal." in done.stdout
+
+
+def test_restarts_count_only_what_was_restarted() -> None:
+    # reservation plans run on one clock for the batch: no reset_at, truncated envs run on
+    cases = (c for c in map(batch_fuzz.draw_case, range(400))
+             if c.overrides.get("control") == "reservation" and not c.continuous
+             and c.steps > c.overrides["max_steps"])
+    record = next(r for r in map(batch_fuzz.run_case, cases) if r["status"] == "same")
+    assert record["restarts"] == 0
