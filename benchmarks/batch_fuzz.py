@@ -250,6 +250,102 @@ def _problems(env: BatchedMiVeCCEnv, out: BatchStep, b: int) -> list[str]:
     return found
 
 
+@dataclasses.dataclass(frozen=True)
+class _Actions:
+    """One step's actions of the whole batch (``None``: that coordinator sends none)."""
+
+    edge: np.ndarray | None
+    cloud: np.ndarray | None
+    signal: np.ndarray | None
+    raw: np.ndarray
+
+    def of(self, b: int) -> dict[str, Any]:
+        """Environment ``b``'s actions as ``step`` keywords of a B = 1 env."""
+        one = slice(b, b + 1)
+        return {"edge_action": None if self.edge is None else self.edge[one],
+                "cloud_action": None if self.cloud is None else self.cloud[one],
+                "signal_action": None if self.signal is None else self.signal[one],
+                "raw_edge": self.raw[one]}
+
+
+def _draw_actions(rngs: list[np.random.Generator], shared: np.random.Generator,
+                  env: BatchedMiVeCCEnv, signal_agents: bool, raw_in_env_0: bool) -> _Actions:
+    """Uniform accelerations of every column, raw edge actions in 30 % of the environments,
+    random phases (-1: the controller) and, batch-wide, no edge (10 %) or no cloud (10 %)
+    action; each environment's draws come from its own generator."""
+    a_max = env.config.a_max_mps2
+    edge = np.stack([r.uniform(-a_max, a_max, (env.n_edge, env.k_edge)) for r in rngs])
+    cloud = np.stack([r.uniform(-a_max, a_max, env.cloud_action_shape) for r in rngs])
+    raw = np.array([r.random() < 0.3 for r in rngs])
+    raw[0] &= raw_in_env_0
+    signal = (np.stack([r.integers(-1, 2, env.n_edge) for r in rngs])
+              if signal_agents else None)
+    u = shared.random()
+    return _Actions(None if u < 0.1 else edge, None if 0.1 <= u < 0.2 else cloud, signal, raw)
+
+
+class _Lockstep:
+    """A case's batch, each of its environments alone, and (outside continuous runs) the
+    ParallelEnv running environment 0, stepped together."""
+
+    def __init__(self, case: Case, extra: dict[str, Any]) -> None:
+        self.case = case
+        self.batch = BatchedMiVeCCEnv(batch_size=case.batch_size, densities=case.densities,
+                                      **case.overrides, **extra)
+        self.singles = [BatchedMiVeCCEnv(batch_size=1, densities=[d], **case.overrides,
+                                         **extra) for d in case.densities]
+        self.pz = None if case.continuous else mivecc_v0.parallel_env(
+            density=case.densities[0], signal_agents=case.signal_agents, **case.overrides)
+        self.resettable = self.batch.config.control in RESETTABLE and not case.continuous
+        self.out = self.batch.reset(seed=case.seeds)
+        self.refs = [env.reset(seed=s) for env, s in zip(self.singles, case.seeds, strict=True)]
+        self.pz_step: tuple | None = None
+        if self.pz is not None:
+            obs, info = self.pz.reset(seed=case.seeds[0])
+            self.pz_step = (obs, None, None, info)
+
+    def problems(self, t: int, summary: dict[str, np.ndarray]) -> tuple[int, list[str]] | None:
+        """The first environment whose arrays differ from its lone run (or whose accounting
+        or observations are wrong) and what differs; ``None`` if none."""
+        for b in range(self.case.batch_size):
+            found = [f"step {t}: {name}" for name in differences(self.out, b, self.refs[b])]
+            alone = self.singles[b].summary()
+            found += [f"step {t}: summary {k}" for k in summary
+                      if summary[k][b].tobytes() != alone[k][0].tobytes()]
+            found += [f"step {t}: {p}" for p in _problems(self.batch, self.out, b)]
+            if b == 0 and self.pz_step is not None:
+                found += [f"step {t}: ParallelEnv {name}" for name in
+                          parallel_differences(self.pz, self.pz_step, self.out, summary)]
+            if found:
+                return b, found
+        return None
+
+    def step(self, act: _Actions) -> None:
+        self.out = self.batch.step(act.edge, act.cloud, signal_action=act.signal,
+                                   raw_edge=act.raw)
+        self.refs = [env.step(**act.of(b)) for b, env in enumerate(self.singles)]
+        if self.pz is not None:
+            obs, rew, _, trunc, info = self.pz.step(
+                _agent_actions(self.pz, act.edge, act.cloud, act.signal))
+            self.pz_step = (obs, rew, trunc, info)
+            if self.out.truncated[0] and not self.resettable:
+                self.pz = self.pz_step = None  # its episode ended; environment 0 runs on
+
+    def restart(self, envs: list[int]) -> None:
+        """Next chunk (continuous runs) or ``reset_at`` of ``envs``, in every runner."""
+        if self.case.continuous:
+            self.out = self.batch.start_chunk(envs)
+            for b in envs:
+                self.refs[b] = self.singles[b].start_chunk([0])
+            return
+        self.out = self.batch.reset_at(envs)
+        for b in envs:
+            self.refs[b] = self.singles[b].reset()
+        if self.pz is not None and 0 in envs:
+            obs, info = self.pz.reset()
+            self.pz_step = (obs, None, None, info)
+
+
 def run_case(case: Case) -> dict[str, Any]:
     """Run one case (module docstring); returns its record (``status``: ``same``,
     ``refused`` or ``differs``, and the workload); an exception of the env propagates."""
@@ -259,81 +355,31 @@ def run_case(case: Case) -> dict[str, Any]:
     if case.signal_agents:
         extra["signal_agents"] = True
     try:
-        batch = BatchedMiVeCCEnv(batch_size=case.batch_size, densities=case.densities,
-                                 **case.overrides, **extra)
+        run = _Lockstep(case, extra)
     except ConfigError as exc:
         return record | {"status": "refused", "detail": str(exc)}
-    singles = [BatchedMiVeCCEnv(batch_size=1, densities=[d], **case.overrides, **extra)
-               for d in case.densities]
-    pz = None if case.continuous else mivecc_v0.parallel_env(
-        density=case.densities[0], signal_agents=case.signal_agents, **case.overrides)
-    n, a_max = case.batch_size, batch.config.a_max_mps2
+    n = case.batch_size
     rngs = [np.random.default_rng([case.index, 1, b]) for b in range(n)]
     shared = np.random.default_rng([case.index, 2])  # batch-wide choices
-    resettable = batch.config.control in RESETTABLE and not case.continuous
-    out = batch.reset(seed=case.seeds)
-    refs = [env.reset(seed=s) for env, s in zip(singles, case.seeds, strict=True)]
-    pz_step = None
-    if pz is not None:
-        o, info = pz.reset(seed=case.seeds[0])
-        pz_step = (o, None, None, info)
     vehicle_steps = restarts = 0
     digest = hashlib.sha256()
     for t in range(case.steps + 1):
-        summary = batch.summary()
-        _digest_update(digest, out, summary)
-        for b in range(n):
-            found = [f"step {t}: {name}" for name in differences(out, b, refs[b])]
-            alone = singles[b].summary()
-            found += [f"step {t}: summary {k}" for k in summary
-                      if summary[k][b].tobytes() != alone[k][0].tobytes()]
-            found += [f"step {t}: {p}" for p in _problems(batch, out, b)]
-            if b == 0 and pz_step is not None:
-                found += [f"step {t}: ParallelEnv {name}"
-                          for name in parallel_differences(pz, pz_step, out, summary)]
-            if found:
-                return record | {"status": "differs", "env": b, "detail": "; ".join(found[:5]),
-                                 "vehicle_steps": vehicle_steps}
-        vehicle_steps += int(batch.sim.in_network.sum())
+        summary = run.batch.summary()
+        _digest_update(digest, run.out, summary)
+        found = run.problems(t, summary)
+        if found is not None:
+            return record | {"status": "differs", "env": found[0],
+                             "detail": "; ".join(found[1][:5]), "vehicle_steps": vehicle_steps}
+        vehicle_steps += int(run.batch.sim.in_network.sum())
         if t == case.steps:
             break
-        edge = np.stack([r.uniform(-a_max, a_max, (batch.n_edge, batch.k_edge)) for r in rngs])
-        cloud = np.stack([r.uniform(-a_max, a_max, batch.cloud_action_shape) for r in rngs])
-        raw = np.array([r.random() < 0.3 for r in rngs])
-        raw[0] &= pz is None  # the ParallelEnv has no raw edge actions
-        signal = (np.stack([r.integers(-1, 2, batch.n_edge) for r in rngs])
-                  if case.signal_agents else None)
-        u = shared.random()
-        edge = None if u < 0.1 else edge  # no edge action: the rules decide
-        cloud = None if 0.1 <= u < 0.2 else cloud
-        out = batch.step(edge, cloud, signal_action=signal, raw_edge=raw)
-        refs = [env.step(None if edge is None else edge[b:b + 1],
-                         None if cloud is None else cloud[b:b + 1],
-                         signal_action=None if signal is None else signal[b:b + 1],
-                         raw_edge=raw[b:b + 1])
-                for b, env in enumerate(singles)]
-        if pz is not None:
-            o, rew, _, trunc, info = pz.step(_agent_actions(pz, edge, cloud, signal))
-            pz_step = (o, rew, trunc, info)
-            if out.truncated[0] and not resettable:
-                pz = pz_step = None  # its episode ended; the batch's environment 0 runs on
-        chosen = set(np.flatnonzero(out.truncated).tolist())
-        if resettable:
+        run.step(_draw_actions(rngs, shared, run.batch, case.signal_agents, run.pz is None))
+        chosen = set(np.flatnonzero(run.out.truncated).tolist())
+        if run.resettable:
             chosen |= {b for b in range(n) if rngs[b].random() < 0.01}
-        if chosen and (resettable or case.continuous):  # others run on, truncated
-            envs = sorted(chosen)
-            restarts += len(envs)
-            if case.continuous:
-                out = batch.start_chunk(envs)
-                for b in envs:
-                    refs[b] = singles[b].start_chunk([0])
-            else:
-                out = batch.reset_at(envs)
-                for b in envs:
-                    refs[b] = singles[b].reset()
-                if pz is not None and 0 in chosen:
-                    o, info = pz.reset()
-                    pz_step = (o, None, None, info)
+        if chosen and (run.resettable or case.continuous):  # others run on, truncated
+            restarts += len(chosen)
+            run.restart(sorted(chosen))
     return record | {"status": "same", "vehicle_steps": vehicle_steps, "restarts": restarts,
                      "env_steps": n * case.steps, "digest": digest.hexdigest()}
 
