@@ -4,14 +4,15 @@
   pass. For each decision vehicle the numpy path of
   :func:`mivecc_env.sim.state_graph.build_graphs` takes the candidate points on either side of
   its own point on the sorted virtual lane, drops the invalid ones (outside the lane's run or
-  the node's area), and stable-sorts the rest by distance (ties: lower point index first) to
-  keep the K-1 nearest. Each half comes nearly sorted by distance (the view's order is exact
-  but for points within its 0.1 mm sort resolution), so this kernel collects the valid points
-  of each half (at most K-1 each) into small buffers, insertion-sorts each by (distance, point
-  index) (one comparison per point when already in order; it fixes the near-ties and gives the
-  stable sort's tie order), and merges the two buffers without branches (sentinels of infinite
-  distance end each side), stopping after K-1 rows; a tie between the halves goes to the point
-  behind (the lower index).
+  the node's area), and orders the rest by :func:`mivecc_env.sim.state_graph.reference_order`
+  to keep the K-1 nearest: each half in the view's point order, nearest first, merged by
+  distance. This kernel collects the valid points of each half (at most K-1 each) into small
+  buffers, reverses every run of equal distances behind the vehicle (increasing point index),
+  and merges the two buffers without branches (sentinels of infinite distance end each side),
+  stopping after K-1 rows; a tie between the halves goes to the point behind (the lower index).
+  The view sorts positions to 0.1 mm, so within 0.1 mm a half keeps the view's order even
+  where float noise puts a later point nearer; the numpy path reproduces that order exactly
+  (a merge of two sequences is a stable sort by each side's running maximum).
 * :func:`select_per_group`: the K lowest keys per group (stable top-K by insertion).
 * :func:`density_indicator`, :func:`area_centres`, :func:`control_area`: loops replacing a few
   numpy calls each.
@@ -51,27 +52,6 @@ def _channels(velocity, accel, v_lo, v_mul, a_mul):  # pragma: no cover - compil
         va[i, 1] = _channel(accel[i] * a_mul)
     return va
 
-
-
-@njit
-def _sort_by_distance(idx, dist, n):  # pragma: no cover - compiled
-    """Sort the first ``n`` candidates by (distance, point index), in place.
-
-    The view sorts points by position quantised to 0.1 mm (``virtual_lane``), so a side's
-    candidates come nearest first except within 0.1 mm: an insertion sort costs one comparison
-    per candidate when they are already in order and fixes those near-ties (as the numpy
-    path's stable sort by distance does: ties go to the lower point index).
-    """
-    for i in range(1, n):
-        d = dist[U(i)]
-        q = idx[U(i)]
-        j = i - 1
-        while j >= 0 and (dist[U(j)] > d or (dist[U(j)] == d and idx[U(j)] > q)):
-            dist[U(j + 1)] = dist[U(j)]
-            idx[U(j + 1)] = idx[U(j)]
-            j -= 1
-        dist[U(j + 1)] = d
-        idx[U(j + 1)] = q
 
 
 @njit
@@ -138,7 +118,21 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
                 b_idx[U(nb)] = q
                 b_dist[U(nb)] = abs(point_pos[U(q)] - s)
                 nb += 1
-        _sort_by_distance(b_idx, b_dist, nb)
+        # a run of equal distances behind goes out in increasing point index
+        t = 0
+        while t < nb - 1:
+            if b_dist[t + 1] != b_dist[t]:
+                t += 1
+                continue
+            e = t + 1
+            while e + 1 < nb and b_dist[e + 1] == b_dist[t]:
+                e += 1
+            lo_t, hi_t = t, e
+            while lo_t < hi_t:
+                b_idx[lo_t], b_idx[hi_t] = b_idx[hi_t], b_idx[lo_t]
+                lo_t += 1
+                hi_t -= 1
+            t = e + 1
         na = 0
         if use_area:
             for q in range(p + 1, hi):  # valid points ahead, nearest (lowest) first
@@ -151,7 +145,6 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
                 a_idx[U(na)] = q
                 a_dist[U(na)] = abs(point_pos[U(q)] - s)
                 na += 1
-        _sort_by_distance(a_idx, a_dist, na)
         b_dist[nb] = np.inf  # sentinels: an exhausted side never wins
         b_idx[nb] = p
         a_dist[na] = np.inf

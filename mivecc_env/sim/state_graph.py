@@ -271,9 +271,7 @@ def build_graphs(
     if area_centre_s is not None:
         valid &= np.abs(pos - area_centre_s[:, None]) <= area_radius_m
     rel = pos - s_d[:, None]
-    dist = np.where(valid, np.abs(rel), np.inf)
-    # Nearest first; ties keep point order (the two halves are sorted runs: cheap to sort).
-    nearest = np.argsort(dist, axis=1, kind="stable")[:, : k - 1]
+    nearest = reference_order(cand, p, valid, np.abs(rel))[:, : k - 1]
     n_ref = nearest.shape[1]
     pick = nearest + (np.arange(decision.size) * width)[:, None]  # flat index into (D, width)
     real = valid.ravel()[pick]
@@ -285,6 +283,44 @@ def build_graphs(
     cells[ref_cell] = block
 
     return _finish_masks(finish(), node, column, view, decision)
+
+
+def reference_order(cand: IntArray, point: IntArray, valid: NDArray[np.bool_],
+                    dist: FloatArray) -> IntArray:
+    """(D, W) order of each decision's reference candidates, nearest first (invalid ones last).
+
+    The rule (the compiled kernel's, :func:`mivecc_env.sim.graph_kernel.build`): each side of
+    the decision's own point is taken in the view's point order, nearest first (behind:
+    decreasing point index, a run of equal distances in increasing index; ahead: increasing
+    index), and the two sides are merged by distance, a tie going to the point behind. The view
+    sorts points by position quantised to 0.1 mm (:mod:`~mivecc_env.sim.virtual_lane`), so
+    within 0.1 mm a side may be out of exact distance order and its order stands. A merge of
+    two sequences equals a stable sort by each side's running maximum of the distance (the
+    side behind first on a tie), which is what this computes.
+
+    Args:
+        cand: (D, W) point index of each candidate, increasing along a row.
+        point: (D,) the decision's own point.
+        valid: (D, W) the candidates that may be references.
+        dist: (D, W) their distance to the decision [m].
+    """
+    d, w = cand.shape
+    cols = np.arange(w)
+    behind = valid & (cand < point[:, None])
+    ahead = valid & (cand > point[:, None])
+    running_ahead = np.maximum.accumulate(np.where(ahead, dist, -np.inf), axis=1)
+    flip_dist = np.where(behind, dist, -np.inf)[:, ::-1]  # behind, nearest first
+    running_behind = np.maximum.accumulate(flip_dist, axis=1)[:, ::-1]
+    key = np.where(behind, running_behind, np.where(ahead, running_ahead, np.inf))
+    # inside the side behind: runs of equal distance (consecutive valid points) nearest first,
+    # each run in increasing point index
+    flip_valid = behind[:, ::-1]
+    last = np.maximum.accumulate(np.where(flip_valid, cols, -1), axis=1)
+    prev = np.concatenate([np.full((d, 1), -1), last[:, :-1]], axis=1)
+    prev_dist = np.take_along_axis(flip_dist, np.maximum(prev, 0), axis=1)
+    run = np.cumsum(flip_valid & ((prev < 0) | (flip_dist != prev_dist)), axis=1)[:, ::-1]
+    second = np.where(behind, run * w + cols, w * w + cols)
+    return np.lexsort((second, key), axis=1)
 
 
 def _finish_masks(graphs: StateGraphs, node: IntArray, column: IntArray, view: VirtualLaneView,
