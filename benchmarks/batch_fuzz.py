@@ -444,8 +444,8 @@ def summarise(records: list[dict[str, Any]], command: str, wall_s: float,
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = cli_args.Parser(description=__doc__.split("\n\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--cases", type=cli_args.count(1), default=100,
                    help="number of cases (default 100)")
     p.add_argument("--start", type=cli_args.count(0), default=0,
@@ -493,4 +493,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

@@ -22,7 +22,6 @@ Usage:
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -197,7 +196,7 @@ def summarise(records: list[dict[str, Any]], command: str, wall_s: float) -> str
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the cases, write and print the summary; 1 if any case differs or raises."""
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = cli_args.Parser(description=__doc__.split("\n\n")[0])
     p.add_argument("--cases", type=cli_args.count(1), default=100,
                    help="number of cases (default 100)")
     p.add_argument("--start", type=cli_args.count(0), default=0,
@@ -233,4 +232,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli_args.run(main))

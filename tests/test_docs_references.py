@@ -73,9 +73,9 @@ def _anchors(page: Path) -> frozenset[str]:
 @cache
 def _section_names(page: Path) -> tuple[str, ...]:
     """Headings and bold lead-ins (``**Name.**``) of a page, lower case, spaces collapsed."""
-    text = _read(page)
-    names = [ln.lstrip("#") for ln in text.splitlines() if ln.startswith("#")]
-    names += re.findall(r"\*\*(.+?)\*\*", text, flags=re.S)
+    text = re.sub(r"^```.*?^```", "", _read(page), flags=re.S | re.M)  # code blocks:
+    names = [ln.lstrip("#") for ln in text.splitlines() if ln.startswith("#")]  # no headings
+    names += re.findall(r"\*\*(.+?)\*\*", text, flags=re.S)  # nor ** of **kwargs
     return tuple(" ".join(n.split()).lower() for n in names)
 
 
