@@ -47,7 +47,7 @@ import json
 import sys
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -443,19 +443,46 @@ def summarise(records: list[dict[str, Any]], command: str, wall_s: float,
     return "\n".join(lines) + "\n"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = cli_args.Parser(description=__doc__.split("\n\n")[0],
-                        formatter_class=argparse.RawDescriptionHelpFormatter)
+def add_case_options(p: argparse.ArgumentParser, default_out: Path) -> None:
+    """The options of every fuzz script: ``--cases``, ``--start``, ``--out``, ``--no-progress``."""
     p.add_argument("--cases", type=cli_args.count(1), default=100,
                    help="number of cases (default 100)")
     p.add_argument("--start", type=cli_args.count(0), default=0,
                    help="number of the first case (default 0)")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT,
-                   help=f"output folder (default {DEFAULT_OUT.relative_to(HERE.parent)})")
+    p.add_argument("--out", type=Path, default=default_out,
+                   help=f"output folder (default {default_out.relative_to(HERE.parent)})")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def run_cases(indices: range, run: Callable[[Case], dict[str, Any]], log_path: Path,
+              progress: bool) -> list[dict[str, Any]]:
+    """``run`` on the cases ``indices``, one JSON line each in ``log_path`` (written as they
+    end); an exception is a finding, recorded as status ``error`` naming the case."""
+    records = []
+    with log_path.open("w") as log:
+        for index in tqdm(indices, disable=not progress, unit="case"):
+            case = draw_case(index)
+            try:
+                record = run(case)
+            except Exception as exc:
+                record = {"case": index, **dataclasses.asdict(case), "status": "error",
+                          "env": "-", "detail": f"{type(exc).__name__}: {exc}"}
+                del record["index"]
+            records.append(record)
+            log.write(json.dumps(record) + "\n")
+            log.flush()
+            if record["status"] in ("differs", "error"):
+                tqdm.write(f"case {index} env {record.get('env', '-')}: {record['detail']}")
+    return records
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = cli_args.Parser(description=__doc__.split("\n\n")[0],
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_case_options(p, DEFAULT_OUT)
     p.add_argument("--against", type=cli_args.existing_file, default=None,
                    help="another run's batch_fuzz.jsonl: compare the trajectory digests case "
                    "by case (e.g. a MIVECC_NO_NUMBA=1 run against a numba one)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p
 
 
@@ -466,22 +493,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = "python benchmarks/batch_fuzz.py " + " ".join(
         sys.argv[1:] if argv is None else list(argv))
     t0 = time.perf_counter()
-    records = []
-    with (out_dir / "batch_fuzz.jsonl").open("w") as log:
-        cases = range(args.start, args.start + args.cases)
-        for index in tqdm(cases, disable=args.no_progress, unit="case"):
-            case = draw_case(index)
-            try:
-                record = run_case(case)
-            except Exception as exc:  # a finding, not a crash: the case is named
-                record = {"case": index, **dataclasses.asdict(case), "status": "error",
-                          "env": "-", "detail": f"{type(exc).__name__}: {exc}"}
-                del record["index"]
-            records.append(record)
-            log.write(json.dumps(record) + "\n")
-            log.flush()
-            if record["status"] in ("differs", "error"):
-                tqdm.write(f"case {index} env {record['env']}: {record['detail']}")
+    records = run_cases(range(args.start, args.start + args.cases), run_case,
+                        out_dir / "batch_fuzz.jsonl", not args.no_progress)
     against = None
     if args.against is not None:
         against = (args.against, *compare_digests(records, args.against))

@@ -22,7 +22,6 @@ Usage:
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from collections import Counter
@@ -32,8 +31,7 @@ from typing import Any
 
 import numpy as np
 import torch
-from batch_fuzz import RESETTABLE, Case, draw_case
-from tqdm import tqdm
+from batch_fuzz import RESETTABLE, Case, add_case_options, run_cases
 
 from mivecc_agents.torchrl_env import MiVeCCTorchEnv
 from mivecc_env import ConfigError, cli_args
@@ -197,34 +195,15 @@ def summarise(records: list[dict[str, Any]], command: str, wall_s: float) -> str
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the cases, write and print the summary; 1 if any case differs or raises."""
     p = cli_args.Parser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--cases", type=cli_args.count(1), default=100,
-                   help="number of cases (default 100)")
-    p.add_argument("--start", type=cli_args.count(0), default=0,
-                   help="number of the first case (default 0)")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT,
-                   help=f"output folder (default {DEFAULT_OUT.relative_to(HERE.parent)})")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_case_options(p, DEFAULT_OUT)
     args = p.parse_args(argv)
     out_dir = cli_args.writable_dir("--out", args.out)
     torch.set_num_threads(1)
     command = "python benchmarks/batch_fuzz_torchrl.py " + " ".join(
         sys.argv[1:] if argv is None else list(argv))
     t0 = time.perf_counter()
-    records = []
-    with (out_dir / "batch_fuzz_torchrl.jsonl").open("w") as log:
-        for index in tqdm(range(args.start, args.start + args.cases), disable=args.no_progress,
-                          unit="case"):
-            case = draw_case(index)
-            try:
-                record = run_case(case)
-            except Exception as exc:  # a finding, not a crash: the case is named
-                record = {"case": index, "status": "error", "continuous": case.continuous,
-                          "detail": f"{type(exc).__name__}: {exc}"}
-            records.append(record)
-            log.write(json.dumps(record) + "\n")
-            log.flush()
-            if record["status"] in ("differs", "error"):
-                tqdm.write(f"case {index}: {record['detail']}")
+    records = run_cases(range(args.start, args.start + args.cases), run_case,
+                        out_dir / "batch_fuzz_torchrl.jsonl", not args.no_progress)
     text = summarise(records, command.strip(), time.perf_counter() - t0)
     (out_dir / "batch_fuzz_torchrl.md").write_text(text)
     print(text, end="")
