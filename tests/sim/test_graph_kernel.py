@@ -64,13 +64,19 @@ def test_kernel_matches_numpy_on_running_traffic() -> None:
     assert filled > 1000
 
 
-def test_kernel_matches_numpy_with_tied_distances() -> None:
-    # Positions rounded to a 4 m grid: many points share a position, so the tie order of the
-    # stable sort (lower point index first) is what decides the row order.
+def _congested() -> tuple[Simulator, MiVeCCConfig]:
+    """A 2x2 EEC simulator after 200 steps at 2700 veh/lane/h (dense virtual lanes)."""
     cfg = MiVeCCConfig(rows=2, cols=2, scheme="EEC")
     sim = Simulator(cfg, batch_size=2, seed=[5, 6], densities=[2700.0, 2700.0])
     for _ in range(200):
         sim.step()
+    return sim, cfg
+
+
+def test_kernel_matches_numpy_with_tied_distances() -> None:
+    # Positions rounded to a 4 m grid: many points share a position, so the tie order of the
+    # stable sort (lower point index first) is what decides the row order.
+    sim, cfg = _congested()
     view = sim.view
     pos = np.round(view.point_pos / 4.0) * 4.0  # monotone: the points stay sorted
     tied = dataclasses.replace(view, point_pos=pos, s=pos[view.own_point])
@@ -84,10 +90,7 @@ def test_kernel_matches_numpy_with_near_ties_out_of_position_order() -> None:
     # positions differ by float noise; batch_fuzz found such runs). The kernel takes each side
     # in the view's order; the numpy path sorted by exact distance and picked other references
     # there (18 of 696 fuzz cases); it now takes the kernel's order (reference_order).
-    cfg = MiVeCCConfig(rows=2, cols=2, scheme="EEC")
-    sim = Simulator(cfg, batch_size=2, seed=[5, 6], densities=[2700.0, 2700.0])
-    for _ in range(200):
-        sim.step()
+    sim, cfg = _congested()
     view = sim.view
     pos = view.point_pos.copy()
     # positions on a 4 m grid (many points share one), then every other point 20 um ahead:
