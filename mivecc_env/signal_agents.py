@@ -17,7 +17,8 @@ current phase (0 / 1), its stage (0 green, 1 yellow, 2 all-red) and the seconds 
 stage. Bounds: :func:`observation_bounds`.
 
 Reward per intersection: the term named by ``signal_reward`` (``"queue"``: -(queued
-vehicles), ``"pressure"``: -|upstream - downstream vehicles|); both terms are reported
+vehicles), ``"pressure"``: -|upstream - downstream vehicles|, ``"throughput"``: the vehicles
+that passed the intersection's centre in the step); every term is reported
 (:data:`SIGNAL_REWARD_TERMS`).
 """
 
@@ -39,9 +40,10 @@ from mivecc_env.sim.signal_control import (
 )
 
 #: Names of the signal agents' reward terms (in the infos of every signal agent).
-SIGNAL_REWARD_TERMS: tuple[str, ...] = ("reward_queue", "reward_pressure")
+SIGNAL_REWARD_TERMS: tuple[str, ...] = ("reward_queue", "reward_pressure", "reward_throughput")
 #: Allowed ``signal_reward`` values -> the term used as the reward.
-SIGNAL_REWARDS = {"queue": "reward_queue", "pressure": "reward_pressure"}
+SIGNAL_REWARDS = {"queue": "reward_queue", "pressure": "reward_pressure",
+                  "throughput": "reward_throughput"}
 #: Feature names of the observation, in order.
 OBS_FEATURES: tuple[str, ...] = (
     *(f"{h}_{f}" for h in HEADINGS for f in APPROACH_FEATURES), *PHASE_FEATURES
@@ -96,7 +98,7 @@ def observe(sim: Simulator, reward: str, with_rewards: bool
     view = sim.view
     v = sim.v.ravel()[view.vehicle]
     obs, terms = signal_observation(sim.network, sim.config, view, view.s, v,
-                                    sim.signal_phases)
+                                    sim.signal_phases, sim.prev_positions)
     if not with_rewards:
         terms = {k: np.zeros_like(t) for k, t in terms.items()}
     terms = {k: terms[k].astype(np.float64) for k in SIGNAL_REWARD_TERMS}

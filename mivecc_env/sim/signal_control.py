@@ -235,8 +235,38 @@ PHASE_FEATURES = ("phase", "stage", "elapsed_s")
 QUEUE_SPEED_MPS = 0.5
 
 
+def centre_crossings(network: GridNetwork, view: VirtualLaneView,
+                     prev_s: tuple[IntArray, FloatArray] | None, batch_size: int) -> IntArray:
+    """(B, n_int) vehicles that passed each intersection's centre in the last move.
+
+    A vehicle of the view passed the centre ``c`` of its lane if its position before the move
+    was below ``c`` and is now at or past it. Vehicles removed in the step (exits, collisions)
+    are not in the view and are not counted; a vehicle entering a slot freed in the same step
+    starts near its lane's entry, before any centre, so it never counts.
+
+    Args:
+        prev_s: (flat slots in increasing order, positions [m]) before the last move
+            (:attr:`Simulator.prev_positions`); ``None`` before the first step (zeros).
+    """
+    n_int = network.n_intersections
+    out = np.zeros((batch_size, n_int), dtype=np.int64)
+    if prev_s is None or prev_s[0].size == 0 or view.n_vehicles == 0:
+        return out
+    slots, s_old = prev_s
+    at = np.minimum(np.searchsorted(slots, view.vehicle), slots.size - 1)
+    known = slots[at] == view.vehicle
+    before = np.where(known, s_old[at], np.inf)
+    centres = network.lane_centres_s[view.lane]  # (n, n_on): inf past the lane's last
+    inter = network.lane_intersections[view.lane]
+    passed = (before[:, None] < centres) & (view.s[:, None] >= centres) & (inter >= 0)
+    vehicle, k = np.nonzero(passed)
+    flat = view.env[vehicle] * n_int + inter[vehicle, k]
+    return np.bincount(flat, minlength=batch_size * n_int).reshape(batch_size, n_int)
+
+
 def signal_observation(network: GridNetwork, config: MiVeCCConfig, view: VirtualLaneView,
-                       s: FloatArray, v: FloatArray, phases: SignalPhases
+                       s: FloatArray, v: FloatArray, phases: SignalPhases,
+                       prev_s: tuple[IntArray, FloatArray] | None = None,
                        ) -> tuple[FloatArray, dict[str, FloatArray]]:
     """What a signal controller sees, per intersection, and its reward terms.
 
@@ -246,8 +276,10 @@ def signal_observation(network: GridNetwork, config: MiVeCCConfig, view: Virtual
             (``approaching``), those of them slower than :data:`QUEUE_SPEED_MPS` (``queue``) and
             their mean velocity [m/s] (0 without vehicles); then the current phase (0 / 1), its
             stage (0 green, 1 yellow, 2 all-red) and the seconds spent in that stage.
-        terms: (B, n_int) reward terms, ``reward_queue`` = -(queued vehicles) and
-            ``reward_pressure`` = -|upstream - downstream vehicles over all approaches|.
+        terms: (B, n_int) reward terms, ``reward_queue`` = -(queued vehicles),
+            ``reward_pressure`` = -|upstream - downstream vehicles over all approaches| and
+            ``reward_throughput`` = the vehicles that passed the centre in the last move
+            (:func:`centre_crossings`; ``prev_s`` as there).
     """
     b, n_int = phases.batch_size, network.n_intersections
     approaching = np.zeros((b, n_int, 4))
@@ -275,5 +307,7 @@ def signal_observation(network: GridNetwork, config: MiVeCCConfig, view: Virtual
                           axis=-1).astype(float)
     obs = np.concatenate([per_approach, phase_part], axis=-1)
     pressure = (counts["upstream"] - counts["downstream"]).sum(axis=-1)
-    terms = {"reward_queue": -queue.sum(axis=-1), "reward_pressure": -np.abs(pressure)}
+    crossed = centre_crossings(network, view, prev_s, b).astype(float)
+    terms = {"reward_queue": -queue.sum(axis=-1), "reward_pressure": -np.abs(pressure),
+             "reward_throughput": crossed}
     return obs, terms

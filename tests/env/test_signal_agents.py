@@ -29,6 +29,8 @@ def test_flag_needs_signalized_control_and_valid_options() -> None:
         BatchedMiVeCCEnv(**KW, signal_agents="yes")
     with pytest.raises(ConfigError, match="signal_reward"):
         parallel(signal_reward="delay")
+    for name in ("queue", "pressure", "throughput"):
+        assert parallel(signal_reward=name).batched.signal_reward == name
 
 
 def test_agents_and_spaces() -> None:
@@ -103,6 +105,35 @@ def test_pressure_reward() -> None:
     for h in history[1:]:
         np.testing.assert_array_equal(h.signal_reward, h.signal_terms["reward_pressure"])
     assert min(h.signal_reward.min() for h in history) < 0
+
+
+@pytest.mark.parametrize("grid", [1, 3])
+def test_throughput_reward_counts_every_centre_crossing(grid: int) -> None:
+    """Summed over a run from an empty network, the vehicles that passed each centre are those
+    that left the network (each passed every centre of its lane) plus those still in it past
+    that centre (no collisions under signals)."""
+    env = BatchedMiVeCCEnv(batch_size=3, densities=[600, 1500, 2100], control="signalized",
+                           signal_agents=True, signal_reward="throughput", observe=(),
+                           rows=grid, cols=grid, max_steps=1500)
+    out = env.reset(seed=4)
+    assert (out.signal_reward == 0).all()
+    total = np.zeros((3, grid * grid))
+    for _ in range(1500):
+        out = env.step()
+        np.testing.assert_array_equal(out.signal_reward, out.signal_terms["reward_throughput"])
+        total += out.signal_reward
+    sim, net = env.sim, env.sim.network
+    assert env.summary()["collisions"].sum() == 0
+    passed = (sim.s[..., None] >= net.lane_centres_s[sim.lane]) & sim.active[..., None]
+    inter = net.lane_intersections[sim.lane]
+    still_in = np.zeros_like(total)
+    for b in range(3):
+        np.add.at(still_in[b], inter[b][passed[b]], 1)
+    exited = env.summary()["throughput"]  # every exited vehicle passed `grid` centres
+    assert total.sum() > 100
+    np.testing.assert_array_equal(total.sum(axis=1), grid * exited + still_in.sum(axis=1))
+    if grid == 1:
+        np.testing.assert_array_equal(total[:, 0], exited + still_in[:, 0])
 
 
 def test_no_action_is_the_fixed_time_trajectory() -> None:
