@@ -2,7 +2,8 @@
 
 For each grid (single intersection 1x1, 3x3), density and seed, every scheme of
 :data:`mivecc_agents.evaluation.SCHEMES` (MiVeCC E / EE / EEC with the shipped coordinators, the
-signal controllers, reservation and optimisation) runs one evaluation episode on the same
+signal controllers, PA-DQN with the shipped signal policy, reservation and optimisation) runs
+one evaluation episode on the same
 seeded demand. Writes to ``--out``:
 
 * ``comparison.csv``: one row per run (the JSON keys of ``mivecc evaluate``) and its ``source``
@@ -11,9 +12,9 @@ seeded demand. Writes to ``--out``:
   deviation, min and max over the seeds of the average travel velocity, the collisions summed
   over the seeds, the upper bound and the share of it reached,
 * ``comparison.md``: the same as tables (mean +- sd, collisions), the max-pressure vs
-  fixed-time gain, and the command that wrote it,
-* ``comparison_<grid>.png``: average travel velocity (seed sd as error bars) and collisions vs
-  density.
+  fixed-time gain, throughput and backlog, and the command that wrote it,
+* ``comparison_<grid>.png``: average travel velocity (seed sd as error bars), throughput and
+  collisions vs density.
 
 Runs already in a CSV given with ``--from-csv`` are reused when grid, scheme, density, seed and
 steps match, so only the missing runs are simulated; when several CSVs hold a run, the LAST one
@@ -45,7 +46,7 @@ from tqdm import tqdm
 
 from mivecc_env import cli_args
 
-SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "reservation",
+SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "pa-dqn", "reservation",
            "optimisation")
 DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
 #: Older name of a scheme in earlier CSVs.
@@ -54,7 +55,7 @@ ALIASES = {"signalized": "fixed-time"}
 TABLE_KEYS = ("grid", "density", "scheme", "runs", "seeds", "steps", "velocity_mean_mps",
               "velocity_sd_mps", "velocity_min_mps", "velocity_max_mps", "collisions",
               "collided_vehicles", "upper_bound_mps", "share_of_upper_bound",
-              "throughput_vph_mean", "source")
+              "throughput_vph_mean", "backlog_mean", "source")
 
 
 def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
@@ -69,6 +70,10 @@ def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
         from mivecc_agents.policies import pretrained_policies
 
         policies = pretrained_policies()
+    elif scheme == "pa-dqn":
+        from mivecc_agents.signal_dqn import SignalDQNPolicy, shipped_policy_path
+
+        policies = {"signal": SignalDQNPolicy.load(shipped_policy_path(rows, cols))}
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
                           progress=False, warn=False)
     out["source"] = "simulated"
@@ -137,6 +142,7 @@ def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                     "share_of_upper_bound": float(v.mean() / bound) if bound > 0 else float("nan"),
                     "throughput_vph_mean": float(np.mean([float(x["throughput_vph"])
                                                           for x in runs])),
+                    "backlog_mean": float(np.mean([float(x["backlog"]) for x in runs])),
                     "source": " ".join(sorted({str(x.get("source") or "") for x in runs})),
                 })
     return out
@@ -192,6 +198,18 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
             gp = gain(rows, g, d)
             lines.append("| " + " | ".join([*cells, bound, "" if gp is None else f"{gp:+.1f} %"])
                          + " |")
+        lines += ["", f"### {name}: throughput [veh/h] / entry backlog at the end [veh], means "
+                  "over the seeds (the velocity counts only vehicles that left the network: a "
+                  "scheme that serves less traffic is not better for a higher velocity)", ""]
+        lines.append("| density | " + " | ".join(schemes) + " |")
+        lines.append("|---" * (len(schemes) + 1) + "|")
+        for d in densities:
+            cells = [str(d)]
+            for s in schemes:
+                t = table.get((name, d, s))
+                cells.append("" if t is None else
+                             f"{t['throughput_vph_mean']:.0f} / {t['backlog_mean']:.0f}")
+            lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
 
@@ -208,7 +226,7 @@ def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[st
     if not table:
         return
     r, c = grid
-    fig, (ax_v, ax_c) = plt.subplots(1, 2, figsize=(12, 4.5))
+    fig, (ax_v, ax_t, ax_c) = plt.subplots(1, 3, figsize=(17, 4.8))
     for s in schemes:
         cells = [t for t in table if t["scheme"] == s]
         if cells:
@@ -218,12 +236,17 @@ def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[st
                           yerr=[t["velocity_sd_mps"] for t in cells], marker="o", capsize=3,
                           label=label)
             ax_c.plot(xs, [t["collisions"] for t in cells], marker="o", label=label)
+            ax_t.plot(xs, [t["throughput_vph_mean"] for t in cells], marker="o", label=label)
     ax_v.axhline(table[0]["upper_bound_mps"], color="k", ls="--", label="upper bound")
     seeds = sorted({int(x) for t in table for x in t["seeds"].split()})
     ax_v.set_xlabel("density [veh/lane/h]")
     ax_v.set_ylabel("average travel velocity [m/s]")
     ax_v.set_title(f"{r}x{c}: average travel velocity (mean +- sd, seeds {seeds})")
     ax_v.legend(fontsize=7, loc="lower left", ncol=2)
+    ax_t.set_xlabel("density [veh/lane/h]")
+    ax_t.set_ylabel("throughput [veh/h] (vehicles that left the network)")
+    ax_t.set_title(f"{r}x{c}: throughput (mean over seeds)")
+    ax_t.legend(fontsize=7, loc="upper left", ncol=2)
     ax_c.set_xlabel("density [veh/lane/h]")
     ax_c.set_ylabel("collision events (sum over seeds)")
     ax_c.set_yscale("symlog")

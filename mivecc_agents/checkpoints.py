@@ -39,6 +39,7 @@ import os
 import re
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +55,7 @@ __all__ = [
     "CheckpointError",
     "export_policy",
     "load_checkpoint",
+    "read_checkpoint",
     "remove_stale_temp_files",
     "save_checkpoint",
 ]
@@ -193,6 +195,49 @@ def _first_sentence(text: str, limit: int = 120) -> str:
     return first if len(first) <= limit else first[: limit - 3] + "..."
 
 
+def require_keys(path: str | os.PathLike, data: dict[str, Any], keys: Sequence[str]) -> None:
+    """``CheckpointError`` naming the file and the ``keys`` that ``data`` lacks, if any."""
+    missing = [k for k in dict.fromkeys(keys) if k not in data]
+    if missing:
+        raise CheckpointError(f"{path}: corrupt mivecc checkpoint, missing {missing}")
+
+
+def read_checkpoint(path: str | os.PathLike, required: Sequence[str]) -> dict[str, Any]:
+    """Read a mivecc checkpoint file and check what every kind shares: the file exists and
+    loads, it has the mivecc marker and the ``required`` keys, its format version is not newer
+    than this package's and its env version is this package's.
+
+    Raises:
+        CheckpointError: naming the file and what is wrong.
+    """
+    path = Path(path)
+    remove_stale_temp_files(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle/zip/EOF errors of many kinds
+        raise CheckpointError(
+            f"{path}: not a readable mivecc checkpoint (corrupt or truncated file?): "
+            f"{type(exc).__name__}: {_first_sentence(str(exc))}"
+        ) from exc
+    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path}: not a mivecc checkpoint (no '{CHECKPOINT_FORMAT}' marker)")
+    require_keys(path, data, ("format_version", *required))
+    version = data["format_version"]
+    if not isinstance(version, int) or version > CHECKPOINT_FORMAT_VERSION:
+        raise CheckpointError(
+            f"{path}: checkpoint format version {version!r} is newer than this mivecc "
+            f"(reads up to {CHECKPOINT_FORMAT_VERSION}); upgrade mivecc"
+        )
+    if data.get("env_version", ENV_VERSION) != ENV_VERSION:
+        raise CheckpointError(
+            f"{path}: trained on env {data.get('env_version')!r}, this package provides "
+            f"{ENV_VERSION!r}"
+        )
+    return data
+
+
 def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -> dict[str, Any]:
     """Load and validate a checkpoint.
 
@@ -208,38 +253,13 @@ def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -
             checkpoint, of a newer format version, of another network kind, or its K does not
             match the network spec.
     """
-    path = Path(path)
-    remove_stale_temp_files(path)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no such checkpoint file")
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # pickle/zip/EOF errors of many kinds
-        raise CheckpointError(
-            f"{path}: not a readable mivecc checkpoint (corrupt or truncated file?): "
-            f"{type(exc).__name__}: {_first_sentence(str(exc))}"
-        ) from exc
-    if not isinstance(data, dict) or data.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"{path}: not a mivecc checkpoint (no '{CHECKPOINT_FORMAT}' marker)")
-    missing = [k for k in _REQUIRED if k not in data]
-    if missing:
-        raise CheckpointError(f"{path}: corrupt mivecc checkpoint, missing {missing}")
-    version = data["format_version"]
-    if not isinstance(version, int) or version > CHECKPOINT_FORMAT_VERSION:
-        raise CheckpointError(
-            f"{path}: checkpoint format version {version!r} is newer than this mivecc "
-            f"(reads up to {CHECKPOINT_FORMAT_VERSION}); upgrade mivecc"
-        )
-    if data.get("env_version", ENV_VERSION) != ENV_VERSION:
-        raise CheckpointError(
-            f"{path}: trained on env {data.get('env_version')!r}, this package provides "
-            f"{ENV_VERSION!r}"
-        )
+    data = read_checkpoint(path, ("kind",))
     kind = data["kind"]
     if expected_kind is not None and kind != expected_kind:
         raise CheckpointError(
             f"{path}: holds the {kind!r} policy, but the {expected_kind!r} policy is needed"
         )
+    require_keys(path, data, _REQUIRED)
     try:
         spec = get_network_spec(kind)
     except ValueError as exc:

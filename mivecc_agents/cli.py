@@ -7,6 +7,8 @@ is added by writing those two and listing the first in :data:`COMMANDS`):
 * ``mivecc evaluate``: run a scheme (``E``, ``EE``, ``EEC`` or a comparator, e.g. ``max-pressure``)
   for some steps on one or more seeds and print the traffic metrics (a table, or JSON with
   ``--json``).
+* ``mivecc train`` / ``mivecc train-signal``: train the coordinators (two-stage DDPG) / the
+  PA-DQN signal policy (:mod:`mivecc_agents.cli_signal`).
 
 Examples::
 
@@ -33,7 +35,9 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from mivecc_agents.cli_signal import add_train_signal_parser, signal_policies
 from mivecc_agents.evaluation import (
+    LEARNED_SIGNAL_SCHEMES,
     SCHEMES,
     adopt_cloud_period,
     aggregate,
@@ -151,7 +155,8 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--scheme", choices=SCHEMES, default="E",
                    help="E, EE, EEC, or a comparator: fixed-time (alias signalized), actuated, "
-                   "max-pressure, reservation, optimisation (docs/comparators.md; default E)")
+                   "max-pressure, reservation, optimisation, pa-dqn (learned signals; "
+                   "docs/comparators.md; default E)")
     add_config_arguments(p)
     p.add_argument("--steps", type=int, default=3000, help="env steps of 0.1 s (default 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
@@ -166,8 +171,12 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
                    help="edge policy checkpoint (default: the shipped pretrained one)")
     p.add_argument("--cloud-checkpoint", type=Path, default=None,
                    help="cloud policy checkpoint (default: the shipped pretrained one)")
+    p.add_argument("--signal-checkpoint", type=Path, default=None,
+                   help="scheme pa-dqn: signal policy checkpoint (default: the shipped one; "
+                   "mivecc train-signal writes one)")
     p.add_argument("--no-pretrained", action="store_true",
-                   help="ignore the shipped checkpoints: EE/EEC act with zero coordinator actions")
+                   help="ignore the shipped checkpoints: EE/EEC act with zero coordinator "
+                   "actions (pa-dqn then needs --signal-checkpoint)")
     p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
                    help="torch threads for the policies' inference (default "
                    f"{DEFAULT_EVAL_THREADS}: fastest for these small networks)")
@@ -282,7 +291,7 @@ def _loads_policies(args: argparse.Namespace) -> bool:
 def _check_checkpoint_files(args: argparse.Namespace) -> None:
     """A given checkpoint path that is no file is an error before anything is imported
     (loading it would import torch first, several seconds)."""
-    for kind in ("edge", "cloud"):
+    for kind in ("edge", "cloud", "signal"):
         path = getattr(args, f"{kind}_checkpoint")
         if path is not None and not Path(path).is_file():
             raise ConfigError(f"--{kind}-checkpoint: {path}: no such checkpoint file")
@@ -368,8 +377,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if _loads_policies(args):
             set_inference_threads(threads)
         policies = evaluation_policies(args, config, overrides)
+    elif args.scheme in LEARNED_SIGNAL_SCHEMES:
+        _check_unused_checkpoints(args)
+        set_inference_threads(threads)
+        policies = signal_policies(args)
     else:
         _check_unused_checkpoints(args)
+    if args.signal_checkpoint is not None and args.scheme not in LEARNED_SIGNAL_SCHEMES:
+        signal_policies(args)  # a given file must load, even when it is not used
+        print(f"{PROG}: warning: --signal-checkpoint: scheme {args.scheme} has no learned "
+              "signal agents: the policy is ignored", file=sys.stderr)
     if len(seeds) == 1:
         results = [evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                                    seeds[0], policies=policies, progress=not args.no_progress,
@@ -426,6 +443,9 @@ def _evaluate_share(job: tuple[argparse.Namespace, dict[str, Any], list[int], in
             set_inference_threads(args.threads)
             with contextlib.redirect_stderr(io.StringIO()):  # the parent has warned
                 policies = evaluation_policies(args, _evaluation_config(args, overrides))
+        elif args.scheme in LEARNED_SIGNAL_SCHEMES:
+            set_inference_threads(args.threads)
+            policies = signal_policies(args)
     return evaluate_batch(args.scheme, args.rows, args.cols, args.density, args.steps, seeds,
                           policies=policies, progress=not (in_worker or args.no_progress),
                           warn=index == 0,
@@ -519,7 +539,7 @@ def _stage2_config(args: argparse.Namespace) -> MiVeCCConfig:
                                  "scheme": "EEC"})
 
 
-COMMANDS.append(add_train_parser)
+COMMANDS.extend([add_train_parser, add_train_signal_parser])
 
 
 def build_parser() -> argparse.ArgumentParser:

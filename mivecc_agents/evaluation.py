@@ -7,7 +7,8 @@ with the run's settings and its speed (env steps per wall-clock second).
 Schemes: ``E`` (end-node rules only), ``EE`` (rules + edge coordinators), ``EEC`` (rules + edge
 + cloud coordinators) and the comparators of :data:`COMPARATORS` (``fixed-time``, ``actuated``,
 ``max-pressure`` signals with IDM car-following, ``reservation`` (AIM FCFS), ``optimisation``
-(DOOC-style); ``signalized`` is the earlier name of ``fixed-time``). The coordinators' actions come
+(DOOC-style), ``pa-dqn`` (signal agents with a learned DQN policy, ``policies["signal"]``);
+``signalized`` is the earlier name of ``fixed-time``). The coordinators' actions come
 from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
 ``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
 ``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
@@ -62,8 +63,12 @@ COMPARATORS: dict[str, dict[str, str]] = {
     "max-pressure": {"control": "signalized", "signal_controller": "max-pressure"},
     "reservation": {"control": "reservation"},
     "optimisation": {"control": "optimisation"},
+    "pa-dqn": {"control": "signalized"},
     "signalized": {"control": "signalized", "signal_controller": "fixed-time"},
 }
+#: Comparators whose signal agents act with a learned policy (``policies["signal"]``,
+#: :mod:`mivecc_agents.signal_dqn`), its choice held between decisions.
+LEARNED_SIGNAL_SCHEMES: tuple[str, ...] = ("pa-dqn",)
 
 #: Scheme names accepted by :func:`evaluate_scheme`: MiVeCC's and the comparators'.
 SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", *COMPARATORS)
@@ -148,16 +153,27 @@ def _check_args(
     if scheme in ("E", "EE", "EEC") and overrides.get("control", "unsignalized") != "unsignalized":
         raise ConfigError(f"control: scheme {scheme!r} needs control='unsignalized', "
                           f"got {overrides['control']!r}")
+    if scheme in LEARNED_SIGNAL_SCHEMES and (policies or {}).get("signal") is None:
+        raise ConfigError(f"policies: scheme {scheme!r} needs policies['signal'], e.g. "
+                          "mivecc_agents.signal_dqn.SignalDQNPolicy.load(mivecc_agents."
+                          "signal_dqn.shipped_policy_path())")
     if policies is not None:
-        unknown = set(policies) - {"edge", "cloud"}
+        unknown = set(policies) - {"edge", "cloud", "signal"}
         if unknown:
             raise ConfigError(
-                f"policies: keys must be 'edge' and/or 'cloud', got {sorted(unknown)}"
+                f"policies: keys must be 'edge', 'cloud' and/or 'signal', got {sorted(unknown)}"
             )
+        if "signal" in policies and scheme not in LEARNED_SIGNAL_SCHEMES:
+            raise ConfigError(f"policies: 'signal' is used by scheme(s) "
+                              f"{list(LEARNED_SIGNAL_SCHEMES)} only, not {scheme!r}")
         for kind, policy in policies.items():
             if policy is not None and not callable(policy):
                 raise ConfigError(f"policies: {kind!r} must be a callable (obs, mask) -> "
                                   f"actions or None, got {type(policy).__name__}")
+        signal = policies.get("signal")
+        if signal is not None and not getattr(signal, "decision_period_s", 0) > 0:
+            raise ConfigError("policies: 'signal' must have a decision_period_s > 0 [s] "
+                              "(a SignalDQNPolicy)")
 
 
 def _coordinator_actions(
@@ -170,6 +186,17 @@ def _coordinator_actions(
         print(ZERO_ACTION_WARNING.format(scheme=scheme, missing=" and ".join(missing)),
               file=sys.stderr)
     return "unused" if not needed else ("zero" if missing else "policy")
+
+
+def _held_phases(scheme: str, policies: Mapping[str, Any], dt_s: float) -> Any:
+    """The learned signal policy of ``scheme`` with its choices held between decisions
+    (:class:`mivecc_agents.signal_dqn.HeldPhases`), or None for every other scheme."""
+    if scheme not in LEARNED_SIGNAL_SCHEMES:
+        return None
+    from mivecc_agents.signal_dqn import HeldPhases, decision_steps
+
+    policy = policies["signal"]
+    return HeldPhases(policy, decision_steps(policy.decision_period_s, dt_s))
 
 
 def _progress_bar(progress: bool, steps: int, desc: str) -> Any:
@@ -293,18 +320,26 @@ def evaluate_scheme(
     policies = dict(policies or {})
     overrides = scheme_overrides(scheme, config_overrides)
     adopt_cloud_period(policies, overrides, overrides["scheme"])
+    learned_signals = scheme in LEARNED_SIGNAL_SCHEMES
     env = mivecc_v0.parallel_env(
-        rows=rows, cols=cols, density=density, max_steps=int(steps), **overrides
+        rows=rows, cols=cols, density=density, max_steps=int(steps),
+        signal_agents=learned_signals, **overrides
     )
     cfg = env.config
 
     needed = _needed_policies(cfg.scheme)
     coordinator_actions = _coordinator_actions(scheme, needed, policies, warn)
+    if learned_signals:
+        coordinator_actions = "policy"
     edge_policy = policies.get("edge") if "edge" in needed else None
     cloud_policy = policies.get("cloud") if "cloud" in needed else None
+    held = _held_phases(scheme, policies, cfg.dt_s)
+    signal_agents = [a for a in env.possible_agents if a.startswith("signal_")]
 
-    # Built once: the zero actions of every agent (policy outputs overwrite entries per step).
-    actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents}
+    # Built once: the zero actions of every coordinator (policy outputs overwrite entries per
+    # step; the signal agents' phases are set on every step when they act).
+    actions = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.possible_agents
+               if a not in signal_agents}
     edge_agents = list(env.edge_agents)
     a_max = cfg.a_max_mps2
 
@@ -336,6 +371,9 @@ def evaluate_scheme(
                 act(edge_policy, edge_agents, obs, infos)
             if cloud_policy is not None and env.batched.cloud_decides[0]:
                 act(cloud_policy, [CLOUD_AGENT], obs, infos)  # ignored on other steps
+        if held is not None:
+            phases = held(i, np.stack([obs[a] for a in signal_agents])[None])[0]
+            actions.update(zip(signal_agents, phases.tolist(), strict=True))
         obs, _, _, _, infos = step(actions)
         if step_hook is not None:
             step_hook(env, i + 1)
@@ -413,10 +451,14 @@ def evaluate_batch(
     needed = _needed_policies(needed_scheme)
     env = BatchedMiVeCCEnv(
         batch_size=len(pairs), densities=[d for d, _ in pairs], observe=set(needed),
-        rows=rows, cols=cols, density=dens[0], max_steps=int(steps), **overrides,
+        rows=rows, cols=cols, density=dens[0], max_steps=int(steps),
+        signal_agents=scheme in LEARNED_SIGNAL_SCHEMES, **overrides,
     )
     cfg = env.config
     coordinator_actions = _coordinator_actions(scheme, needed, policies, warn)
+    held = _held_phases(scheme, policies, cfg.dt_s)
+    if held is not None:
+        coordinator_actions = "policy"
     a_max = cfg.a_max_mps2
     b = len(pairs)
 
@@ -445,7 +487,8 @@ def evaluate_batch(
                                   step.cloud_mask.reshape(b, n_cloud, k), a_max, cloud_stacked,
                                   np.flatnonzero(decides).tolist()
                                   ).reshape(b, *env.cloud_action_shape)
-        before, step = step, env.step(edge, cloud)
+        signal = held(i, step.signal_obs) if held is not None else None
+        before, step = step, env.step(edge, cloud, signal_action=signal)
         if on_step is not None:
             on_step(before, edge, cloud if cloud is None or decides.all()
                     else np.where(decides.reshape(-1, *[1] * (cloud.ndim - 1)), cloud, np.nan),

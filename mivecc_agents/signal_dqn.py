@@ -1,0 +1,346 @@
+"""PA-DQN: learned traffic-signal control by DQN, the paper's learned signal comparator.
+
+The paper compares MiVeCC on the single intersection with PA-DQN, "an application of DQN in the
+single intersection traffic light control" (its reference: Tan et al. 2020); no implementation
+is public. This module is this package's reading of it, on the signal agents of
+:mod:`mivecc_env.signal_agents` (``control="signalized"``):
+
+* **decision**: every ``decision_period_s`` (10 s) each intersection's agent picks the phase it
+  wants green (0 east-west, 1 north-south) from its 15 observation features (vehicles, queued
+  vehicles and mean velocity per approach; phase, stage, time in stage); the choice is held until
+  the next decision. The phase machine enforces the minimum green, the yellow and the all-red.
+* **reward** of a decision: the vehicles that passed the intersection's centre during the period
+  (``signal_reward="throughput"``) times ``reward_scale``. A queue reward saturates once a queue
+  outgrows the observed 75 m, and a DQN trained on it starved an approach
+  (``examples/torchrl_signal_dqn.py``, ``docs/comparators.md``).
+* **network**: an MLP (two hidden layers, ReLU) over the observation divided by its bounds, one
+  network shared by all intersections (independent agents with shared parameters).
+* **training**: double DQN with TorchRL's ``DQNLoss`` and a soft target update, epsilon-greedy
+  exploration decaying linearly, a replay buffer; ``batch`` environments on the single
+  intersection with the densities of ``densities`` cycled over them, episodes of
+  ``episode_steps`` steps from an empty network, each on fresh training seeds (never the
+  evaluation seeds 0-2).
+
+A trained policy is :class:`SignalDQNPolicy`; :class:`HeldPhases` holds its choices between
+decisions; ``mivecc evaluate --scheme pa-dqn`` runs the shipped one of
+the grid (:func:`shipped_policy_path`: trained on 1x1 for the single intersection, on 3x3 for
+larger grids), ``mivecc train-signal`` trains one.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from mivecc_agents.checkpoints import (
+    CheckpointError,
+    read_checkpoint,
+    require_keys,
+    save_checkpoint,
+)
+from mivecc_agents.signal_dqn_settings import SignalDQNSettings, decision_steps
+from mivecc_env import signal_agents
+from mivecc_env.config import MiVeCCConfig
+
+__all__ = [
+    "HeldPhases",
+    "SignalDQNPolicy",
+    "SignalDQNSettings",
+    "SignalQNetwork",
+    "shipped_policy_path",
+    "train_signal_dqn",
+]
+
+#: ``kind`` of a signal-policy checkpoint.
+SIGNAL_KIND = "signal_dqn"
+#: The shipped policies (in the package): trained on the single intersection, and on 3x3.
+SHIPPED_DIR = Path(__file__).parent / "pretrained"
+#: The first training seed (training never uses the evaluation seeds 0, 1, 2).
+FIRST_TRAIN_SEED = 10_000
+
+
+def shipped_policy_path(rows: int = 1, cols: int = 1) -> Path:
+    """The shipped PA-DQN policy for a grid: the one trained on the single intersection
+    (``pretrained/signal_dqn_1x1.pt``) for 1x1, the one trained on 3x3
+    (``pretrained/signal_dqn_3x3.pt``, where an intersection's neighbours feed and drain it)
+    for every larger grid."""
+    name = "signal_dqn_1x1.pt" if rows * cols == 1 else "signal_dqn_3x3.pt"
+    return SHIPPED_DIR / name
+
+
+class SignalQNetwork(nn.Module):
+    """Q-values ``(..., 2)`` (one per phase) of signal observations ``(..., 15)``.
+
+    The observation is divided by its bounds (:func:`mivecc_env.signal_agents.
+    observation_bounds`, each at least 1) before two hidden ReLU layers.
+    """
+
+    def __init__(self, high: torch.Tensor, hidden: int) -> None:
+        super().__init__()
+        self.register_buffer("scale", 1.0 / high.to(torch.float32).clamp(min=1.0))
+        n_in = high.numel()
+        self.net = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden),
+                                 nn.ReLU(), nn.Linear(hidden, signal_agents.N_PHASES))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.net(obs * self.scale)
+
+
+class SignalDQNPolicy:
+    """A trained PA-DQN policy: ``policy(obs)`` -> the greedy phase of every row.
+
+    Attributes:
+        net: the Q-network.
+        decision_period_s: time between two decisions [s] (the training's).
+        settings: the training settings (a dict).
+        checkpoint: the file it was loaded from ("" if trained in this process).
+    """
+
+    def __init__(self, net: SignalQNetwork, decision_period_s: float,
+                 settings: dict[str, Any], checkpoint: str = "") -> None:
+        self.net = net.eval()
+        self.decision_period_s = float(decision_period_s)
+        self.settings = settings
+        self.checkpoint = checkpoint
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """(n,) int64 phases of observations ``(n, 15)`` (ties: phase 0)."""
+        arr = np.asarray(obs, dtype=np.float32)
+        if arr.ndim != 2 or arr.shape[1] != signal_agents.OBS_DIM:
+            raise ValueError(f"obs: expected shape (n, {signal_agents.OBS_DIM}), got "
+                             f"{arr.shape}")
+        with torch.no_grad():
+            q = self.net(torch.from_numpy(arr))
+        return q.argmax(dim=-1).numpy().astype(np.int64)
+
+    def save(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
+        """Write the policy as a mivecc checkpoint (``kind="signal_dqn"``)."""
+        return save_checkpoint(path, {
+            "kind": SIGNAL_KIND, "grid_size": signal_agents.OBS_DIM,
+            "decision_period_s": self.decision_period_s, "hidden": self.net.net[0].out_features,
+            "settings": self.settings, "network": self.net.state_dict(), "extra": extra or {},
+        })
+
+    @classmethod
+    def load(cls, path: str | Path) -> SignalDQNPolicy:
+        """Read a policy written by :meth:`save`; :class:`CheckpointError` (naming the file)
+        for a missing, corrupt or foreign file."""
+        data = read_checkpoint(path, ("kind",))
+        if data["kind"] != SIGNAL_KIND:
+            raise CheckpointError(f"{path}: holds the {data['kind']!r} policy, but a "
+                                  f"{SIGNAL_KIND!r} policy is needed")
+        require_keys(path, data, ("decision_period_s", "hidden", "network", "settings"))
+        try:
+            hidden = int(data["hidden"])
+            period = float(data["decision_period_s"])
+            if hidden < 1 or not period > 0:
+                raise ValueError(f"hidden {hidden}, decision period {period}")
+            net = SignalQNetwork(torch.ones(signal_agents.OBS_DIM), hidden)
+            net.load_state_dict(data["network"])
+        except (TypeError, ValueError, RuntimeError, KeyError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            raise CheckpointError(f"{path}: corrupt signal policy: {type(exc).__name__}: "
+                                  f"{first[:120]}") from exc
+        return cls(net, period, dict(data["settings"]), checkpoint=str(path))
+
+
+class HeldPhases:
+    """The phases a policy chose at its last decision, held between decisions.
+
+    ``phases(t, obs)`` with ``t`` the env steps taken since the reset and ``obs`` ``(B, n_int,
+    15)``: every ``period_steps`` steps (``t = 0, p, 2p, ...``) the policy is called once per
+    environment on its ``(n_int, 15)`` rows (so no environment's choice depends on the batch);
+    otherwise the held choice is returned. Returns ``(B, n_int)`` int64.
+    """
+
+    def __init__(self, policy: Callable[[np.ndarray], np.ndarray], period_steps: int) -> None:
+        self.policy = policy
+        self.period_steps = int(period_steps)
+        self.held: np.ndarray | None = None
+
+    def __call__(self, t: int, obs: np.ndarray) -> np.ndarray:
+        if self.held is None or t % self.period_steps == 0:
+            self.held = np.stack([np.asarray(self.policy(env_obs), dtype=np.int64)
+                                  for env_obs in obs])
+        return self.held
+
+
+def _high(cfg: MiVeCCConfig) -> torch.Tensor:
+    return torch.from_numpy(signal_agents.observation_bounds(cfg)[1])
+
+
+def train_signal_dqn(settings: SignalDQNSettings,
+                     on_episode: Callable[[dict[str, float]], None] | None = None,
+                     ) -> tuple[SignalDQNPolicy, list[dict[str, float]]]:
+    """Train a PA-DQN policy (module docstring); returns it and one log row per episode.
+
+    The run is deterministic for a given ``settings`` (torch's global random state is used
+    inside :func:`torch.random.fork_rng` and left as it was). ``on_episode(row)`` is called
+    after each episode (progress). Log row keys: ``episode``, ``epsilon`` (at the episode's
+    end), ``reward_per_decision`` (mean over agents and decisions), ``throughput``,
+    ``backlog`` and ``avg_travel_velocity_mps`` (means over the episode's environments),
+    ``loss`` (mean TD loss of the episode's updates; NaN before the first), ``wall_s``.
+    """
+    from mivecc_env.batched import BatchedMiVeCCEnv
+
+    settings.check()
+    cfg = settings.env_config()
+    period = decision_steps(settings.decision_period_s, cfg.dt_s)
+    densities = [settings.densities[i % len(settings.densities)] for i in range(settings.batch)]
+    env = BatchedMiVeCCEnv(cfg, batch_size=settings.batch, densities=densities, observe=(),
+                           signal_agents=True, signal_reward="throughput")
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(settings.seed)
+        learner = _Learner(settings, _high(cfg))
+        rng = np.random.default_rng(settings.seed)
+        log = _train_loop(settings, env, learner, period, rng, on_episode)
+    policy = SignalDQNPolicy(learner.qnet, settings.decision_period_s, settings.to_dict())
+    return policy, log
+
+
+class _Learner:
+    """The Q-network, TorchRL's double-DQN loss, its target update, optimiser and buffer."""
+
+    def __init__(self, settings: SignalDQNSettings, high: torch.Tensor) -> None:
+        from tensordict.nn import TensorDictModule, TensorDictSequential
+        from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+        from torchrl.modules import QValueModule
+        from torchrl.objectives import DQNLoss, SoftUpdate
+
+        self.qnet = SignalQNetwork(high, settings.hidden)
+        module = TensorDictModule(self.qnet, in_keys=["observation"], out_keys=["action_value"])
+        policy = TensorDictSequential(module, QValueModule(action_space="categorical"))
+        self.loss = DQNLoss(policy, action_space="categorical", delay_value=True,
+                            double_dqn=True)
+        self.loss.make_value_estimator(gamma=settings.gamma)
+        self.target = SoftUpdate(self.loss, tau=settings.tau)
+        self.optim = torch.optim.Adam(self.loss.parameters(), lr=settings.lr)
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(settings.buffer),
+                                             batch_size=settings.minibatch)
+        self.settings = settings
+
+    def add(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
+            next_obs: np.ndarray) -> None:
+        """Store transitions (rows of agents; no terminal states: the flow continues)."""
+        from tensordict import TensorDict
+
+        n = obs.shape[0]
+        done = torch.zeros((n, 1), dtype=torch.bool)
+        self.buffer.extend(TensorDict({
+            "observation": torch.from_numpy(obs), "action": torch.from_numpy(action),
+            "next": TensorDict({"observation": torch.from_numpy(next_obs),
+                                "reward": torch.from_numpy(reward.astype(np.float32))[:, None],
+                                "done": done, "terminated": done.clone()}, [n]),
+        }, [n]))
+
+    def update(self) -> float | None:
+        """``updates_per_decision`` gradient steps (after the warm-up); the mean loss."""
+        if len(self.buffer) < self.settings.warmup or self.settings.updates_per_decision == 0:
+            return None
+        total = 0.0
+        for _ in range(self.settings.updates_per_decision):
+            loss = self.loss(self.buffer.sample())["loss"]
+            self.optim.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(self.loss.parameters(), 10.0)
+            self.optim.step()
+            self.target.step()
+            total += float(loss.detach())
+        return total / self.settings.updates_per_decision
+
+    def greedy(self, obs: np.ndarray) -> np.ndarray:
+        with torch.no_grad():
+            return self.qnet(torch.from_numpy(obs)).argmax(-1).numpy().astype(np.int64)
+
+
+def _train_loop(settings: SignalDQNSettings, env: Any, learner: _Learner, period: int,
+                rng: np.random.Generator, on_episode: Callable[[dict[str, float]], None] | None,
+                ) -> list[dict[str, float]]:
+    b, n_int = env.batch_size, env.n_edge
+    decisions_per_episode = settings.episode_steps // period
+    total = settings.episodes * decisions_per_episode
+    decay = max(1.0, settings.eps_decay_fraction * total)
+    log, done_decisions, t0 = [], 0, time.perf_counter()
+    for episode in range(settings.episodes):
+        first = FIRST_TRAIN_SEED + settings.seed * 1_000_000 + episode * settings.batch
+        out = env.reset(seed=first)
+        obs = out.signal_obs.reshape(b * n_int, -1)
+        rewards, losses, eps = [], [], settings.eps_start
+        for _ in range(decisions_per_episode):
+            frac = min(1.0, done_decisions / decay)
+            eps = settings.eps_start + frac * (settings.eps_end - settings.eps_start)
+            action = learner.greedy(obs)
+            explore = rng.random(action.shape) < eps
+            action = np.where(explore, rng.integers(0, signal_agents.N_PHASES, action.shape),
+                              action)
+            reward = np.zeros(b * n_int)
+            for _ in range(period):
+                out = env.step(signal_action=action.reshape(b, n_int))
+                reward += out.signal_reward.reshape(-1)
+            reward *= settings.reward_scale
+            next_obs = out.signal_obs.reshape(b * n_int, -1)
+            learner.add(obs, action, reward, next_obs)
+            loss = learner.update()
+            if loss is not None:
+                losses.append(loss)
+            rewards.append(float(reward.mean()))
+            obs = next_obs
+            done_decisions += 1
+        summary = env.summary()
+        row = {"episode": episode + 1, "epsilon": eps,
+               "reward_per_decision": float(np.mean(rewards)) if rewards else math.nan,
+               "throughput": float(summary["throughput"].mean()),
+               "backlog": float(summary["backlog"].mean()),
+               "avg_travel_velocity_mps": float(np.nanmean(summary["avg_travel_velocity_mps"])),
+               "loss": float(np.mean(losses)) if losses else math.nan,
+               "wall_s": time.perf_counter() - t0}
+        log.append(row)
+        if on_episode is not None:
+            on_episode(row)
+    return log
+
+
+def write_log(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
+    """The training log as CSV (one row per episode)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
+    """A PNG of the training log: reward per decision and throughput per episode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    episodes = [r["episode"] for r in rows]
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    top.plot(episodes, [r["reward_per_decision"] for r in rows], marker="o", ms=3)
+    top.set_ylabel("reward per decision\n(vehicles through x scale)")
+    top.set_title("PA-DQN training (exploration included)")
+    bottom.plot(episodes, [r["throughput"] for r in rows], marker="o", ms=3, label="throughput")
+    bottom.plot(episodes, [r["backlog"] for r in rows], marker="s", ms=3, label="entry backlog")
+    bottom.set_ylabel("vehicles per environment")
+    bottom.set_xlabel("episode")
+    bottom.legend()
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
