@@ -142,7 +142,8 @@ def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                     "share_of_upper_bound": float(v.mean() / bound) if bound > 0 else float("nan"),
                     "throughput_vph_mean": float(np.mean([float(x["throughput_vph"])
                                                           for x in runs])),
-                    "backlog_mean": float(np.mean([float(x["backlog"]) for x in runs])),
+                    "backlog_mean": float(np.mean([float(x.get("backlog") or "nan")
+                                                   for x in runs])),
                     "source": " ".join(sorted({str(x.get("source") or "") for x in runs})),
                 })
     return out
