@@ -48,7 +48,8 @@ def add_train_signal_parser(subparsers: Any) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "train-signal", help="train the PA-DQN signal policy (learned signal comparator)",
         description="Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
-        "decision_period_s) on the single intersection; docs/comparators.md.",
+        "decision_period_s) on the single intersection, or on a grid with --rows/--cols; "
+        "docs/comparators.md.",
     )
     p.add_argument("--out", type=Path, required=True,
                    help="folder for signal_dqn.pt, train_log.csv and learning_curve.png")

@@ -291,8 +291,9 @@ def evaluate_scheme(
 
     Args:
         scheme: one of :data:`SCHEMES`: ``"E"``, ``"EE"``, ``"EEC"``, ``"fixed-time"``,
-            ``"actuated"``, ``"max-pressure"``, ``"reservation"``, ``"optimisation"``
-            (``"signalized"`` = ``"fixed-time"``). All run on the same seeded demand.
+            ``"actuated"``, ``"max-pressure"``, ``"reservation"``, ``"optimisation"``,
+            ``"pa-dqn"`` (``"signalized"`` = ``"fixed-time"``). All run on the same seeded
+            demand.
         rows: intersection rows of the grid.
         cols: intersection columns of the grid.
         density: arrival rate per entry lane [veh/lane/h].
@@ -300,6 +301,9 @@ def evaluate_scheme(
         seed: seed of ``env.reset``.
         policies: ``"edge"`` / ``"cloud"`` -> policy callable (see the module docstring);
             a coordinator that the scheme uses and that has no policy acts with zeros.
+            ``"signal"``: the learned signal policy of ``pa-dqn`` (required there; a
+            :class:`mivecc_agents.signal_dqn.SignalDQNPolicy` or any callable ``(n, 15)
+            observations -> (n,)`` phases with a ``decision_period_s``).
         progress: show a tqdm progress bar on stderr.
         warn: print the zero-coordinator-action warning to stderr when it applies.
         step_hook: called as ``step_hook(env, t)`` after the reset (``t = 0``) and after every
