@@ -26,8 +26,8 @@ Signal agents (``control="signalized"``, ``groups`` with ``"signal"``: the batch
 ``signal_agents``): ``("signal", "observation")`` ``(B, n_int, 15)`` float32
 (:data:`mivecc_env.signal_agents.OBS_FEATURES`), ``("signal", "action")`` ``(B, n_int)``
 int64 in {0, 1} (the phase each intersection wants green), ``("signal", "reward")``
-``(B, n_int, 1)`` (``signal_reward``: queue or pressure), ``("signal", "info", term)`` for
-both reward terms, and the done keys.
+``(B, n_int, 1)`` (``signal_reward``: queue, pressure or throughput), ``("signal", "info",
+term)`` for every reward term, and the done keys.
 
 with ``g`` in ``groups`` (``edge``: ``n_g`` = number of intersections, K = ``k_edge``;
 ``cloud``: ``n_g`` = 1, K = ``k_cloud``; with ``cloud_graphs="per_lane"`` ``n_g`` = the
@@ -82,7 +82,8 @@ class MiVeCCTorchEnv(EnvBase):
             densities); default: the config's density for all.
         groups: agent groups to expose, a subset of ``("edge", "cloud", "signal")``
             (default ``("edge", "cloud")``); ``"signal"`` needs ``control="signalized"``.
-        signal_reward: the signal agents' reward, ``"queue"`` or ``"pressure"``.
+        signal_reward: the signal agents' reward, ``"queue"``, ``"pressure"`` or
+            ``"throughput"``.
         summary_keys: episode-summary keys to put under ``(g, "info")`` (default all of
             :data:`mivecc_env.metrics.SUMMARY_KEYS`; ``()`` for none).
         seed: if given, :meth:`set_seed` is called with it.

@@ -120,7 +120,7 @@ class BatchedMiVeCCEnv:
             scheme: ``E``/``EE`` -> ``{"edge"}``, ``EEC`` -> ``{"edge", "cloud"}``.
         signal_agents: add the signal agents' arrays (``control="signalized"`` only; see
             :mod:`mivecc_env.signal_agents`).
-        signal_reward: their reward, ``"queue"`` or ``"pressure"``.
+        signal_reward: their reward, ``"queue"``, ``"pressure"`` or ``"throughput"``.
         continuous: episodes are chunks of ``max_steps`` steps of one continuing simulation
             (:meth:`start_chunk`); ``False`` (default): truncation at ``max_steps`` since the
             environment's reset.
