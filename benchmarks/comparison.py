@@ -12,7 +12,8 @@ seeded demand. Writes to ``--out``:
   deviation, min and max over the seeds of the average travel velocity, the collisions summed
   over the seeds, the upper bound and the share of it reached,
 * ``comparison.md``: the same as tables (mean +- sd, collisions), the max-pressure vs
-  fixed-time gain, throughput and backlog, and the command that wrote it,
+  fixed-time gain, throughput and backlog, the velocity without the entry wait and the share
+  of arrivals that entered, and the command that wrote it,
 * ``comparison_<grid>.png``: average travel velocity (seed sd as error bars), throughput and
   collisions vs density.
 
@@ -55,7 +56,8 @@ ALIASES = {"signalized": "fixed-time"}
 TABLE_KEYS = ("grid", "density", "scheme", "runs", "seeds", "steps", "velocity_mean_mps",
               "velocity_sd_mps", "velocity_min_mps", "velocity_max_mps", "collisions",
               "collided_vehicles", "upper_bound_mps", "share_of_upper_bound",
-              "throughput_vph_mean", "backlog_mean", "source")
+              "throughput_vph_mean", "backlog_mean", "velocity_no_wait_mean_mps",
+              "entered_share", "source")
 
 
 def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
@@ -144,6 +146,12 @@ def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                                                           for x in runs])),
                     "backlog_mean": float(np.mean([float(x.get("backlog") or "nan")
                                                    for x in runs])),
+                    "velocity_no_wait_mean_mps": float(np.mean([
+                        float(x.get("avg_travel_velocity_no_wait_mps") or "nan")
+                        for x in runs])),
+                    "entered_share": float(np.mean([
+                        1.0 - float(x.get("backlog") or "nan") / float(x.get("arrived") or "nan")
+                        for x in runs])),
                     "source": " ".join(sorted({str(x.get("source") or "") for x in runs})),
                 })
     return out
@@ -210,6 +218,19 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                 t = table.get((name, d, s))
                 cells.append("" if t is None else
                              f"{t['throughput_vph_mean']:.0f} / {t['backlog_mean']:.0f}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", f"### {name}: average travel velocity without the entry wait [m/s] / share "
+                  "of the arrivals that entered the network, means over the seeds (the "
+                  "comparators enter a vehicle only with room to stop behind a standing one, "
+                  "docs/comparators.md)", ""]
+        lines.append("| density | " + " | ".join(schemes) + " |")
+        lines.append("|---" * (len(schemes) + 1) + "|")
+        for d in densities:
+            cells = [str(d)]
+            for s in schemes:
+                t = table.get((name, d, s))
+                cells.append("" if t is None else f"{t['velocity_no_wait_mean_mps']:.2f} / "
+                             f"{100 * t['entered_share']:.0f} %")
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
