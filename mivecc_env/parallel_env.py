@@ -390,6 +390,9 @@ class MiVeCCParallelEnv(ParallelEnv):
         naming the agent), judged against its last observation; nothing if it is valid. The
         AEC env (:func:`mivecc_env.mivecc_v0.env`) checks each action with it when it is given.
         """
+        if (agent in self._edge_index or agent == CLOUD_AGENT) and self._in_box(
+                action, self._act_spaces[agent].shape) is not None:
+            return  # step's fast path accepts it as it is (:meth:`_in_box`)
         actions = {agent: action}
         self._columns(actions)  # step's checks of the agents and of edge and cloud actions
         self._phases(actions)  # a signal agent's phase
