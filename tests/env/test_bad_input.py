@@ -261,3 +261,41 @@ def test_step_after_episode_end() -> None:
         e.step({})
     e.reset()
     e.step({})
+
+
+def test_check_action_raises_exactly_what_step_raises() -> None:
+    """The AEC's early check (with its fast path for in-box arrays) and the parallel step
+    accept and refuse the same actions, with the same message."""
+    import torch
+
+    env = mivecc_v0.parallel_env(rows=1, cols=2, density=1800, scheme="EEC", max_cycles=500)
+    env.reset(seed=3)
+    for _ in range(150):  # vehicles in the areas, so some columns are real and some padded
+        env.step({a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents})
+    mask = env.batched._last.edge_mask[0, 0]
+    assert 0 < mask.sum() < mask.size
+    real, padded = int(np.flatnonzero(mask)[0]), int(np.flatnonzero(mask == 0)[0])
+
+    def with_value(col: int, value: float) -> np.ndarray:
+        a = np.zeros(15)
+        a[col] = value
+        return a
+
+    candidates = [
+        np.zeros(15, np.float32), np.full(15, 3.0), np.full(15, 3.0 + 1e-3), list(range(15)),
+        np.arange(15) % 3, with_value(real, np.nan), with_value(padded, np.nan),
+        with_value(real, np.inf), with_value(padded, 99.0), np.zeros(14), np.zeros((1, 15)),
+        torch.zeros(15), torch.full((15,), 5.0), "fast", None,
+    ]
+    zeros = {a: np.zeros(env.action_space(a).shape, np.float32) for a in env.agents}
+
+    def error(call, *args) -> str | None:
+        try:
+            call(*args)
+        except ValueError as err:
+            return str(err)
+        return None
+
+    for action in candidates:
+        early = error(env.check_action, "edge_0", action)
+        assert early == error(env.step, {**zeros, "edge_0": action}), (action, early)
