@@ -207,33 +207,39 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
             gp = gain(rows, g, d)
             lines.append("| " + " | ".join([*cells, bound, "" if gp is None else f"{gp:+.1f} %"])
                          + " |")
-        lines += ["", f"### {name}: throughput [veh/h] / entry backlog at the end [veh], means "
-                  "over the seeds (the velocity counts only vehicles that left the network: a "
-                  "scheme that serves less traffic is not better for a higher velocity)", ""]
-        lines.append("| density | " + " | ".join(schemes) + " |")
-        lines.append("|---" * (len(schemes) + 1) + "|")
-        for d in densities:
-            cells = [str(d)]
-            for s in schemes:
-                t = table.get((name, d, s))
-                cells.append("" if t is None else
-                             f"{t['throughput_vph_mean']:.0f} / {t['backlog_mean']:.0f}")
-            lines.append("| " + " | ".join(cells) + " |")
-        lines += ["", f"### {name}: average travel velocity without the entry wait [m/s] / share "
-                  "of the arrivals that entered the network, means over the seeds (the "
-                  "comparators enter a vehicle only with room to stop behind a standing one, "
-                  "docs/comparators.md)", ""]
-        lines.append("| density | " + " | ".join(schemes) + " |")
-        lines.append("|---" * (len(schemes) + 1) + "|")
-        for d in densities:
-            cells = [str(d)]
-            for s in schemes:
-                t = table.get((name, d, s))
-                cells.append("" if t is None else f"{t['velocity_no_wait_mean_mps']:.2f} / "
-                             f"{100 * t['entered_share']:.0f} %")
-            lines.append("| " + " | ".join(cells) + " |")
+        for title, cell in _EXTRA_TABLES:
+            lines += ["", *_scheme_table(
+                f"### {name}: {title}",
+                {(d, s): cell(t) for (grid_name, d, s), t in table.items() if grid_name == name},
+                schemes, densities)]
         lines.append("")
     return "\n".join(lines)
+
+
+#: The tables after the velocity table of each grid: (title, text of a cell from its
+#: ``summarise`` row).
+_EXTRA_TABLES: tuple[tuple[str, Any], ...] = (
+    ("throughput [veh/h] / entry backlog at the end [veh], means over the seeds (the velocity "
+     "counts only vehicles that left the network: a scheme that serves less traffic is not "
+     "better for a higher velocity)",
+     lambda t: f"{t['throughput_vph_mean']:.0f} / {t['backlog_mean']:.0f}"),
+    ("average travel velocity without the entry wait [m/s] / share of the arrivals that "
+     "entered the network, means over the seeds (the comparators enter a vehicle only with "
+     "room to stop behind a standing one, docs/comparators.md)",
+     lambda t: f"{t['velocity_no_wait_mean_mps']:.2f} / {100 * t['entered_share']:.0f} %"),
+)
+
+
+def _scheme_table(title: str, cells: dict[tuple[int, str], str], schemes: Sequence[str],
+                  densities: Sequence[int]) -> list[str]:
+    """A markdown table under ``title``: one row per density, one column per scheme, the
+    ``cells[(density, scheme)]`` text (empty where a cell has no runs)."""
+    lines = [title, "", "| density | " + " | ".join(schemes) + " |",
+             "|---" * (len(schemes) + 1) + "|"]
+    for d in densities:
+        row = [str(d), *(cells.get((d, s), "") for s in schemes)]
+        lines.append("| " + " | ".join(row) + " |")
+    return lines
 
 
 def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[str],
