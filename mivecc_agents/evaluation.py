@@ -338,7 +338,7 @@ def evaluate_scheme(
     edge_policy = policies.get("edge") if "edge" in needed else None
     cloud_policy = policies.get("cloud") if "cloud" in needed else None
     held = _held_phases(scheme, policies, cfg.dt_s)
-    signal_agents = [a for a in env.possible_agents if a.startswith("signal_")]
+    signal_agents = list(env.signal_agents)
 
     # Built once: the zero actions of every coordinator (policy outputs overwrite entries per
     # step; the signal agents' phases are set on every step when they act).
