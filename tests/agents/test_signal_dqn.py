@@ -124,7 +124,8 @@ def test_shipped_policy_batch_equals_single_runs_and_repeats() -> None:
     for rows, cols in ((1, 1), (3, 3)):
         shipped = SignalDQNPolicy.load(shipped_policy_path(rows, cols))
         assert shipped.decision_period_s == 10.0
-        assert (shipped.settings["rows"], shipped.settings["cols"]) == (rows, cols)
+        # made by the documented commands: the default settings on that grid
+        assert shipped.settings == SignalDQNSettings(rows=rows, cols=cols).to_dict()
     policy = SignalDQNPolicy.load(shipped_policy_path(2, 2))
     batch = evaluate_batch("pa-dqn", 2, 2, [900, 1800], 600, [0, 1],
                            policies={"signal": policy}, progress=False)
