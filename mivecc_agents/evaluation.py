@@ -375,8 +375,8 @@ def evaluate_scheme(
                 act(edge_policy, edge_agents, obs, infos)
             if cloud_policy is not None and env.batched.cloud_decides[0]:
                 act(cloud_policy, [CLOUD_AGENT], obs, infos)  # ignored on other steps
-        if held is not None:
-            phases = held(i, np.stack([obs[a] for a in signal_agents])[None])[0]
+        if held is not None and held.due(i):  # the phases stay in `actions` in between
+            phases = held.decide(np.stack([obs[a] for a in signal_agents])[None])[0]
             actions.update(zip(signal_agents, phases.tolist(), strict=True))
         obs, _, _, _, infos = step(actions)
         if step_hook is not None:
@@ -491,7 +491,9 @@ def evaluate_batch(
                                   step.cloud_mask.reshape(b, n_cloud, k), a_max, cloud_stacked,
                                   np.flatnonzero(decides).tolist()
                                   ).reshape(b, *env.cloud_action_shape)
-        signal = held(i, step.signal_obs) if held is not None else None
+        signal = None
+        if held is not None:
+            signal = held.decide(step.signal_obs) if held.due(i) else held.phases
         before, step = step, env.step(edge, cloud, signal_action=signal)
         if on_step is not None:
             on_step(before, edge, cloud if cloud is None or decides.all()

@@ -124,9 +124,9 @@ class SignalDQNPolicy:
     def save(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
         """Write the policy as a mivecc checkpoint (``kind="signal_dqn"``)."""
         return save_checkpoint(path, {
-            "kind": SIGNAL_KIND, "grid_size": signal_agents.OBS_DIM,
-            "decision_period_s": self.decision_period_s, "hidden": self.net.net[0].out_features,
-            "settings": self.settings, "network": self.net.state_dict(), "extra": extra or {},
+            "kind": SIGNAL_KIND, "decision_period_s": self.decision_period_s,
+            "hidden": self.net.net[0].out_features, "settings": self.settings,
+            "network": self.net.state_dict(), "extra": extra or {},
         })
 
     @classmethod
@@ -155,22 +155,27 @@ class SignalDQNPolicy:
 class HeldPhases:
     """The phases a policy chose at its last decision, held between decisions.
 
-    ``phases(t, obs)`` with ``t`` the env steps taken since the reset and ``obs`` ``(B, n_int,
-    15)``: every ``period_steps`` steps (``t = 0, p, 2p, ...``) the policy is called once per
-    environment on its ``(n_int, 15)`` rows (so no environment's choice depends on the batch);
-    otherwise the held choice is returned. Returns ``(B, n_int)`` int64.
+    With ``t`` the env steps taken since the reset, :meth:`due` says whether ``t`` is a
+    decision step (``t = 0, p, 2p, ...`` for ``period_steps`` = p); on those the caller passes
+    the ``(B, n_int, 15)`` observations to :meth:`decide`, which calls the policy once per
+    environment on its ``(n_int, 15)`` rows (so no environment's choice depends on the batch).
+    :attr:`phases` holds the last choice, ``(B, n_int)`` int64, for the steps in between.
     """
 
     def __init__(self, policy: Callable[[np.ndarray], np.ndarray], period_steps: int) -> None:
         self.policy = policy
         self.period_steps = int(period_steps)
-        self.held: np.ndarray | None = None
+        self.phases: np.ndarray | None = None
 
-    def __call__(self, t: int, obs: np.ndarray) -> np.ndarray:
-        if self.held is None or t % self.period_steps == 0:
-            self.held = np.stack([np.asarray(self.policy(env_obs), dtype=np.int64)
-                                  for env_obs in obs])
-        return self.held
+    def due(self, t: int) -> bool:
+        """Whether step ``t`` is a decision step (the first call always is)."""
+        return self.phases is None or t % self.period_steps == 0
+
+    def decide(self, obs: np.ndarray) -> np.ndarray:
+        """The policy's phases for ``obs`` (B, n_int, 15), held from now on."""
+        self.phases = np.stack([np.asarray(self.policy(env_obs), dtype=np.int64)
+                                for env_obs in obs])
+        return self.phases
 
 
 def _high(cfg: MiVeCCConfig) -> torch.Tensor:

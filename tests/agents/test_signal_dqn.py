@@ -98,10 +98,15 @@ def test_held_phases_decide_on_the_period_only() -> None:
     policy = _Counting()
     held = HeldPhases(policy, period_steps=20)
     obs = np.zeros((3, 4, 15), np.float32)
+    decided = []
     for t in range(45):
-        out = held(t, obs)
+        if held.due(t):
+            decided.append(t)
+            held.decide(obs)
+        out = held.phases
         assert out.shape == (3, 4) and (out == 1).all()
     assert policy.calls == 3 * 3  # t = 0, 20, 40, once per environment
+    assert decided == [0, 20, 40]
 
 
 def test_scheme_follows_the_policy_and_needs_one() -> None:
