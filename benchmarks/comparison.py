@@ -2,9 +2,9 @@
 
 For each grid (single intersection 1x1, 3x3), density and seed, every scheme of
 :data:`mivecc_agents.evaluation.SCHEMES` (MiVeCC E / EE / EEC with the shipped coordinators, the
-signal controllers, PA-DQN with the shipped signal policy, reservation and optimisation) runs
-one evaluation episode on the same
-seeded demand. Writes to ``--out``:
+signal controllers, PA-DQN and Coder with their shipped signal policies (Coder on grids of at
+least 2x2 only), reservation and optimisation) runs one evaluation episode on the same seeded
+demand. Writes to ``--out``:
 
 * ``comparison.csv``: one row per run (the JSON keys of ``mivecc evaluate``) and its ``source``
   (the CSV it was reused from, or ``simulated``),
@@ -13,7 +13,8 @@ seeded demand. Writes to ``--out``:
   over the seeds, the upper bound and the share of it reached,
 * ``comparison.md``: the same as tables (mean +- sd, collisions), the max-pressure vs
   fixed-time gain, throughput and backlog, the velocity without the entry wait and the share
-  of arrivals that entered, and the command that wrote it,
+  of arrivals that entered, MiVeCC-EEC vs Coder beside the paper's row, and the command that
+  wrote it,
 * ``comparison_<grid>.png``: average travel velocity (seed sd as error bars), throughput and
   collisions vs density.
 
@@ -47,8 +48,11 @@ from tqdm import tqdm
 
 from mivecc_env import cli_args
 
-SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "pa-dqn", "reservation",
-           "optimisation")
+SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "pa-dqn", "coder",
+           "reservation", "optimisation")
+#: The paper's Table eff_imp_rate, row "MiVeCC-EEC vs. Coder" (3x3) [%], by density.
+PAPER_EEC_VS_CODER = {300: 79.80, 600: 85.10, 900: 146.63, 1200: 283.32, 1500: 352.26,
+                      1800: 419.48, 2100: 459.09}
 DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
 #: Older name of a scheme in earlier CSVs.
 ALIASES = {"signalized": "fixed-time"}
@@ -72,14 +76,28 @@ def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
         from mivecc_agents.policies import pretrained_policies
 
         policies = pretrained_policies()
-    elif scheme == "pa-dqn":
-        from mivecc_agents.signal_dqn import SignalDQNPolicy, shipped_policy_path
+    elif scheme in ("pa-dqn", "coder"):
+        from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
 
-        policies = {"signal": SignalDQNPolicy.load(shipped_policy_path(rows, cols))}
+        policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
                           progress=False, warn=False)
     out["source"] = "simulated"
     return out
+
+
+def runs_on(scheme: str, rows: int, cols: int) -> bool:
+    """Whether ``scheme`` runs on the grid (Coder needs 2x2 regions: not on 1x1)."""
+    if scheme != "coder":
+        return True
+    from mivecc_agents.coder_settings import check_coder_grid
+    from mivecc_env.config import ConfigError
+
+    try:
+        check_coder_grid(rows, cols)
+    except ConfigError:
+        return False
+    return True
 
 
 def _key(row: dict[str, Any]) -> tuple:
@@ -115,6 +133,12 @@ def _cell_runs(rows: list[dict[str, Any]], grid: tuple[int, int], scheme: str,
             and int(float(x["cols"])) == c and int(float(x["density"])) == density]
 
 
+def _number(row: dict[str, Any], key: str) -> float:
+    """``row[key]`` as a float; NaN where the run has no such value (older CSVs)."""
+    value = row.get(key)
+    return float("nan") if value is None or value == "" else float(value)
+
+
 def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
               schemes: Sequence[str], densities: Sequence[int]) -> list[dict[str, Any]]:
     """One row per (grid, density, scheme) with runs: :data:`TABLE_KEYS`.
@@ -144,14 +168,11 @@ def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                     "share_of_upper_bound": float(v.mean() / bound) if bound > 0 else float("nan"),
                     "throughput_vph_mean": float(np.mean([float(x["throughput_vph"])
                                                           for x in runs])),
-                    "backlog_mean": float(np.mean([float(x.get("backlog") or "nan")
-                                                   for x in runs])),
+                    "backlog_mean": float(np.mean([_number(x, "backlog") for x in runs])),
                     "velocity_no_wait_mean_mps": float(np.mean([
-                        float(x.get("avg_travel_velocity_no_wait_mps") or "nan")
-                        for x in runs])),
+                        _number(x, "avg_travel_velocity_no_wait_mps") for x in runs])),
                     "entered_share": float(np.mean([
-                        1.0 - float(x.get("backlog") or "nan") / float(x.get("arrived") or "nan")
-                        for x in runs])),
+                        1.0 - _number(x, "backlog") / _number(x, "arrived") for x in runs])),
                     "source": " ".join(sorted({str(x.get("source") or "") for x in runs})),
                 })
     return out
@@ -181,6 +202,7 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
         sub = [t for k, t in table.items() if k[0] == name]
         if not sub:
             continue
+        on_grid = [s for s in schemes if any(t["scheme"] == s for t in sub)]
         seeds = sorted({int(s) for t in sub for s in t["seeds"].split()})
         steps = {t["scheme"]: t["steps"] for t in sub}
         short = sorted({f"{s} {v}" for s, v in steps.items()
@@ -190,12 +212,12 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                   "n = runs where fewer than the seeds", ""]
         if short:
             lines += [f"Steps per run: {max(steps.values())}, except {', '.join(short)}.", ""]
-        lines.append("| density | " + " | ".join(schemes) + " | upper bound | max-pressure vs "
+        lines.append("| density | " + " | ".join(on_grid) + " | upper bound | max-pressure vs "
                      "fixed-time (same seeds) |")
-        lines.append("|---" * (len(schemes) + 3) + "|")
+        lines.append("|---" * (len(on_grid) + 3) + "|")
         for d in densities:
             cells, bound = [str(d)], ""
-            for s in schemes:
+            for s in on_grid:
                 t = table.get((name, d, s))
                 if t is None:
                     cells.append("")
@@ -211,9 +233,30 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
             lines += ["", *_scheme_table(
                 f"### {name}: {title}",
                 {(d, s): cell(t) for (grid_name, d, s), t in table.items() if grid_name == name},
-                schemes, densities)]
+                on_grid, densities)]
+        lines += _eec_vs_coder(rows, g, densities)
         lines.append("")
     return "\n".join(lines)
+
+
+def _eec_vs_coder(rows: list[dict[str, Any]], grid: tuple[int, int],
+                  densities: Sequence[int]) -> list[str]:
+    """The paper's headline row on this grid (where both ran): MiVeCC-EEC's velocity gain
+    over Coder [%] on the same seeds, beside the paper's (3x3) and EEC over fixed-time."""
+    gains = {d: (gain(rows, grid, d, "EEC", "coder"), gain(rows, grid, d, "EEC", "fixed-time"))
+             for d in densities}
+    if all(g is None for g, _ in gains.values()):
+        return []
+    paper = grid == (3, 3)
+    lines = ["", f"### {grid[0]}x{grid[1]}: MiVeCC-EEC vs Coder, average travel velocity gain "
+             "[%] on the same seeds (the paper's Table eff_imp_rate row" +
+             (")" if paper else ", reported for 3x3)"), "",
+             "| density | EEC vs Coder | paper (3x3) | EEC vs fixed-time |", "|---|---|---|---|"]
+    for d, (vs_coder, vs_fixed) in gains.items():
+        cells = ["" if x is None else f"{x:+.1f} %" for x in (vs_coder, vs_fixed)]
+        ref = f"+{PAPER_EEC_VS_CODER[d]:.1f} %" if d in PAPER_EEC_VS_CODER else ""
+        lines.append(f"| {d} | {cells[0]} | {ref} | {cells[1]} |")
+    return lines
 
 
 #: The tables after the velocity table of each grid: (title, text of a cell from its
@@ -332,6 +375,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for (r, c) in grids:
         for d in args.densities:
             for s in args.schemes:
+                if not runs_on(s, r, c):
+                    continue
                 for seed in args.seeds:
                     steps = steps_for.get(s, args.steps)
                     key = (s, r, c, d, seed, steps)

@@ -7,8 +7,8 @@ is added by writing those two and listing the first in :data:`COMMANDS`):
 * ``mivecc evaluate``: run a scheme (``E``, ``EE``, ``EEC`` or a comparator, e.g. ``max-pressure``)
   for some steps on one or more seeds and print the traffic metrics (a table, or JSON with
   ``--json``).
-* ``mivecc train`` / ``mivecc train-signal``: train the coordinators (two-stage DDPG) / the
-  PA-DQN signal policy (:mod:`mivecc_agents.cli_signal`).
+* ``mivecc train`` / ``mivecc train-signal`` / ``mivecc train-coder``: train the coordinators
+  (two-stage DDPG) / the PA-DQN or Coder signal policy (:mod:`mivecc_agents.cli_signal`).
 
 Examples::
 
@@ -35,7 +35,11 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from mivecc_agents.cli_signal import add_train_signal_parser, signal_policies
+from mivecc_agents.cli_signal import (
+    add_train_coder_parser,
+    add_train_signal_parser,
+    signal_policies,
+)
 from mivecc_agents.evaluation import (
     LEARNED_SIGNAL_SCHEMES,
     SCHEMES,
@@ -155,7 +159,7 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--scheme", choices=SCHEMES, default="E",
                    help="E, EE, EEC, or a comparator: fixed-time (alias signalized), actuated, "
-                   "max-pressure, reservation, optimisation, pa-dqn (learned signals; "
+                   "max-pressure, reservation, optimisation, pa-dqn, coder (learned signals; "
                    "docs/comparators.md; default E)")
     add_config_arguments(p)
     p.add_argument("--steps", type=int, default=3000, help="env steps of 0.1 s (default 3000)")
@@ -172,11 +176,11 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--cloud-checkpoint", type=Path, default=None,
                    help="cloud policy checkpoint (default: the shipped pretrained one)")
     p.add_argument("--signal-checkpoint", type=Path, default=None,
-                   help="scheme pa-dqn: signal policy checkpoint (default: the shipped one; "
-                   "mivecc train-signal writes one)")
+                   help="schemes pa-dqn and coder: signal policy checkpoint (default: the "
+                   "shipped one; mivecc train-signal / train-coder write one)")
     p.add_argument("--no-pretrained", action="store_true",
                    help="ignore the shipped checkpoints: EE/EEC act with zero coordinator "
-                   "actions (pa-dqn then needs --signal-checkpoint)")
+                   "actions (pa-dqn and coder then need --signal-checkpoint)")
     p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
                    help="torch threads for the policies' inference (default "
                    f"{DEFAULT_EVAL_THREADS}: fastest for these small networks)")
@@ -539,7 +543,7 @@ def _stage2_config(args: argparse.Namespace) -> MiVeCCConfig:
                                  "scheme": "EEC"})
 
 
-COMMANDS.extend([add_train_parser, add_train_signal_parser])
+COMMANDS.extend([add_train_parser, add_train_signal_parser, add_train_coder_parser])
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,10 +1,11 @@
-"""The PA-DQN parts of the ``mivecc`` command line.
+"""The learned signal comparators' parts of the ``mivecc`` command line (PA-DQN and Coder).
 
-* ``mivecc evaluate --scheme pa-dqn [--signal-checkpoint FILE]``: :func:`signal_policies` loads
-  the signal policy (default: the shipped one).
+* ``mivecc evaluate --scheme pa-dqn|coder [--signal-checkpoint FILE]``: :func:`signal_policies`
+  loads the signal policy (default: the shipped one).
 * ``mivecc train-signal --out DIR``: trains a PA-DQN policy (:mod:`mivecc_agents.signal_dqn`)
   and writes ``DIR/signal_dqn.pt``, ``DIR/train_log.csv`` and ``DIR/learning_curve.png``;
-  one progress line per episode on stderr, the checkpoint's path on stdout.
+  ``mivecc train-coder --out DIR`` the same for Coder (:mod:`mivecc_agents.coder`,
+  ``DIR/coder.pt``). One progress line per episode on stderr, the checkpoint's path on stdout.
 """
 
 from __future__ import annotations
@@ -22,38 +23,73 @@ PROG = "mivecc"
 
 
 def signal_policies(args: argparse.Namespace) -> dict[str, Any]:
-    """``{"signal": policy}`` from ``--signal-checkpoint`` or the shipped policy of the grid
-    (``--rows``, ``--cols``); a file that is missing or not a signal policy is a
-    :class:`ConfigError` naming the option."""
+    """``{"signal": policy}`` from ``--signal-checkpoint`` or the shipped policy of the scheme
+    (``pa-dqn`` or ``coder``) and grid (``--rows``, ``--cols``); a file that is missing, not a
+    signal policy or the other learned scheme's is a :class:`ConfigError` naming the option."""
     from mivecc_agents.checkpoints import CheckpointError
-    from mivecc_agents.signal_dqn import SignalDQNPolicy, shipped_policy_path
+    from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
 
+    learned = args.scheme in ("pa-dqn", "coder")
     path, option = args.signal_checkpoint, "--signal-checkpoint"
     if path is None:
         if args.no_pretrained:
-            raise ConfigError("--no-pretrained: scheme pa-dqn needs a signal policy; give "
-                              "--signal-checkpoint")
-        path, option = shipped_policy_path(args.rows, args.cols), "shipped signal policy"
+            raise ConfigError(f"--no-pretrained: scheme {args.scheme} needs a signal policy; "
+                              "give --signal-checkpoint")
+        path, option = shipped_signal_policy_path(args.scheme, args.rows, args.cols), (
+            "shipped signal policy")
     try:
-        return {"signal": SignalDQNPolicy.load(path)}
+        policy = load_signal_policy(path)
     except CheckpointError as exc:
         raise ConfigError(f"{option}: {exc}") from exc
+    if learned and policy.scheme != args.scheme:
+        raise ConfigError(f"{option}: {path} holds a {policy.scheme} policy; scheme "
+                          f"{args.scheme} needs a {args.scheme} policy")
+    return {"signal": policy}
+
+
+#: The training commands: name -> (settings class path, trainer path, checkpoint file, help).
+TRAIN_COMMANDS = {
+    "train-signal": ("mivecc_agents.signal_dqn_settings:SignalDQNSettings",
+                     "mivecc_agents.signal_dqn:train_signal_dqn", "signal_dqn.pt",
+                     "train the PA-DQN signal policy (learned signal comparator)",
+                     "Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
+                     "decision_period_s) on the single intersection, or on a grid with "
+                     "--rows/--cols; docs/comparators.md."),
+    "train-coder": ("mivecc_agents.coder_settings:CoderSettings",
+                    "mivecc_agents.coder:train_coder", "coder.pt",
+                    "train the Coder signal policy (learned multi-intersection comparator)",
+                    "Train Coder (regional DQN agents over 2x2 blocks, then the aggregation of "
+                    "their values into the grid's Q-function; a decision every "
+                    "decision_period_s) on 3x3, or another grid of 4-12 intersections with "
+                    "--rows/--cols; docs/comparators.md."),
+}
+
+
+def _attr(spec: str) -> Any:
+    import importlib
+
+    module, name = spec.split(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def add_train_signal_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """The ``train-signal`` subcommand: every :class:`SignalDQNSettings` field but ``config``
-    as an option (``--set KEY=VALUE`` for config fields)."""
-    from mivecc_agents.signal_dqn_settings import SignalDQNSettings
+    """The ``train-signal`` subcommand (:func:`_add_train_parser`)."""
+    return _add_train_parser(subparsers, "train-signal")
 
-    p = subparsers.add_parser(
-        "train-signal", help="train the PA-DQN signal policy (learned signal comparator)",
-        description="Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
-        "decision_period_s) on the single intersection, or on a grid with --rows/--cols; "
-        "docs/comparators.md.",
-    )
+
+def add_train_coder_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """The ``train-coder`` subcommand (:func:`_add_train_parser`)."""
+    return _add_train_parser(subparsers, "train-coder")
+
+
+def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
+    """A training subcommand of :data:`TRAIN_COMMANDS`: every field of its settings class but
+    ``config`` as an option (``--set KEY=VALUE`` for config fields)."""
+    settings_spec, _, checkpoint, help_text, description = TRAIN_COMMANDS[name]
+    p = subparsers.add_parser(name, help=help_text, description=description)
     p.add_argument("--out", type=Path, required=True,
-                   help="folder for signal_dqn.pt, train_log.csv and learning_curve.png")
-    for f in dataclasses.fields(SignalDQNSettings):
+                   help=f"folder for {checkpoint}, train_log.csv and learning_curve.png")
+    for f in dataclasses.fields(_attr(settings_spec)):
         if f.name == "config":
             continue
         option = "--" + f.name.replace("_", "-")
@@ -65,46 +101,44 @@ def add_train_signal_parser(subparsers: Any) -> argparse.ArgumentParser:
         kind = int if isinstance(f.default, int) else float
         p.add_argument(option, type=kind, default=f.default,
                        help=f"{f.metadata['help']} (default {f.default})")
-    p.add_argument("--set", dest="set_items", action="append", metavar="KEY=VALUE", default=None,
+    p.add_argument("--set", dest="set_items", action="append", metavar="KEY=VALUE",
+                   default=None,
                    help="a MiVeCCConfig field of the training environments (repeatable)")
     p.add_argument("--threads", type=cli_args.count(1), default=1,
-                   help="torch threads (default 1: fastest for this small network)")
-    p.set_defaults(func=cmd_train_signal)
+                   help="torch threads (default 1: fastest for these small networks)")
+    p.set_defaults(func=cmd_train_signal, train_command=name)
     return p
 
 
 def cmd_train_signal(args: argparse.Namespace) -> int:
-    """Run ``mivecc train-signal``."""
+    """Run ``mivecc train-signal`` or ``mivecc train-coder``."""
     from mivecc_agents.cli import parse_set_items, set_inference_threads
 
-    settings_kw = {f.name: getattr(args, f.name) for f in _settings_fields()}
+    settings_spec, trainer_spec, checkpoint, _, _ = TRAIN_COMMANDS[args.train_command]
+    settings_cls = _attr(settings_spec)
+    settings_kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(settings_cls)
+                   if f.name not in ("config", "densities")}
     settings_kw["densities"] = tuple(args.densities)
     settings_kw["config"] = parse_set_items(args.set_items)
-    from mivecc_agents.signal_dqn_settings import SignalDQNSettings
-
-    settings = SignalDQNSettings(**settings_kw).check()
+    settings = settings_cls(**settings_kw).check()
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out: {out} is a file; give a folder")
     set_inference_threads(args.threads)
-    from mivecc_agents.signal_dqn import plot_learning_curve, train_signal_dqn, write_log
+    from mivecc_agents.signal_dqn import plot_learning_curve, write_log
+
+    total = settings.episodes + getattr(settings, "global_episodes", 0)
 
     def progress(row: dict[str, float]) -> None:
-        print(f"episode {row['episode']:.0f}/{settings.episodes}: reward/decision "
+        stage = f" (stage {row['stage']:.0f})" if "stage" in row else ""
+        print(f"episode {row['episode']:.0f}/{total}{stage}: reward/decision "
               f"{row['reward_per_decision']:.3f}, throughput {row['throughput']:.1f} veh, "
               f"backlog {row['backlog']:.1f} veh, epsilon {row['epsilon']:.2f}, loss "
               f"{row['loss']:.4f}, {row['wall_s']:.0f} s", file=sys.stderr, flush=True)
 
-    policy, log = train_signal_dqn(settings, on_episode=progress)
-    path = policy.save(out / "signal_dqn.pt")  # its settings say how it was trained
+    policy, log = _attr(trainer_spec)(settings, on_episode=progress)
+    path = policy.save(out / checkpoint)  # its settings say how it was trained
     write_log(log, out / "train_log.csv")
     plot_learning_curve(log, out / "learning_curve.png")
     print(path)
     return 0
-
-
-def _settings_fields() -> list[dataclasses.Field]:
-    from mivecc_agents.signal_dqn_settings import SignalDQNSettings
-
-    return [f for f in dataclasses.fields(SignalDQNSettings)
-            if f.name not in ("config", "densities")]

@@ -7,9 +7,9 @@ with the run's settings and its speed (env steps per wall-clock second).
 Schemes: ``E`` (end-node rules only), ``EE`` (rules + edge coordinators), ``EEC`` (rules + edge
 + cloud coordinators) and the comparators of :data:`COMPARATORS` (``fixed-time``, ``actuated``,
 ``max-pressure`` signals with IDM car-following, ``reservation`` (AIM FCFS), ``optimisation``
-(DOOC-style), ``pa-dqn`` (signal agents with a learned DQN policy, ``policies["signal"]``);
-``signalized`` is the earlier name of ``fixed-time``). The coordinators' actions come
-from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
+(DOOC-style), ``pa-dqn`` and ``coder`` (signal agents with a learned policy,
+``policies["signal"]``); ``signalized`` is the earlier name of ``fixed-time``). The
+coordinators' actions come from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
 ``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
 ``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
 (clipped to the box), a pure function of its inputs (``n_agents`` may be any number of rows:
@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from mivecc_env import mivecc_v0
-from mivecc_env.config import ConfigError
+from mivecc_env.config import ConfigError, MiVeCCConfig
 from mivecc_env.no_data import mark_no_data
 from mivecc_env.parallel_env import CLOUD_AGENT
 from mivecc_env.sim.checks import check_positive_int
@@ -64,11 +64,13 @@ COMPARATORS: dict[str, dict[str, str]] = {
     "reservation": {"control": "reservation"},
     "optimisation": {"control": "optimisation"},
     "pa-dqn": {"control": "signalized"},
+    "coder": {"control": "signalized"},
     "signalized": {"control": "signalized", "signal_controller": "fixed-time"},
 }
-#: Comparators whose signal agents act with a learned policy (``policies["signal"]``,
-#: :mod:`mivecc_agents.signal_dqn`), its choice held between decisions.
-LEARNED_SIGNAL_SCHEMES: tuple[str, ...] = ("pa-dqn",)
+#: Comparators whose signal agents act with a learned policy (``policies["signal"]``:
+#: :mod:`mivecc_agents.signal_dqn` for PA-DQN, :mod:`mivecc_agents.coder` for Coder), its choice
+#: held between decisions.
+LEARNED_SIGNAL_SCHEMES: tuple[str, ...] = ("pa-dqn", "coder")
 
 #: Scheme names accepted by :func:`evaluate_scheme`: MiVeCC's and the comparators'.
 SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", *COMPARATORS)
@@ -154,9 +156,9 @@ def _check_args(
         raise ConfigError(f"control: scheme {scheme!r} needs control='unsignalized', "
                           f"got {overrides['control']!r}")
     if scheme in LEARNED_SIGNAL_SCHEMES and (policies or {}).get("signal") is None:
+        module = "coder.CoderPolicy" if scheme == "coder" else "signal_dqn.SignalDQNPolicy"
         raise ConfigError(f"policies: scheme {scheme!r} needs policies['signal'], e.g. "
-                          "mivecc_agents.signal_dqn.SignalDQNPolicy.load(mivecc_agents."
-                          "signal_dqn.shipped_policy_path())")
+                          f"mivecc_agents.{module}.load(...shipped_policy_path())")
     if policies is not None:
         unknown = set(policies) - {"edge", "cloud", "signal"}
         if unknown:
@@ -173,7 +175,10 @@ def _check_args(
         signal = policies.get("signal")
         if signal is not None and not getattr(signal, "decision_period_s", 0) > 0:
             raise ConfigError("policies: 'signal' must have a decision_period_s > 0 [s] "
-                              "(a SignalDQNPolicy)")
+                              "(a SignalDQNPolicy or a CoderPolicy)")
+        if getattr(signal, "scheme", scheme) != scheme:
+            raise ConfigError(f"policies: 'signal' is a policy of scheme {signal.scheme!r}, "
+                              f"not of {scheme!r}")
 
 
 def _coordinator_actions(
@@ -188,15 +193,18 @@ def _coordinator_actions(
     return "unused" if not needed else ("zero" if missing else "policy")
 
 
-def _held_phases(scheme: str, policies: Mapping[str, Any], dt_s: float) -> Any:
+def _held_phases(scheme: str, policies: Mapping[str, Any], cfg: MiVeCCConfig) -> Any:
     """The learned signal policy of ``scheme`` with its choices held between decisions
-    (:class:`mivecc_agents.signal_dqn.HeldPhases`), or None for every other scheme."""
+    (:class:`mivecc_agents.signal_dqn.HeldPhases`), or None for every other scheme. A policy
+    with a ``for_grid(rows, cols)`` method (Coder's) is set to the grid of ``cfg`` first."""
     if scheme not in LEARNED_SIGNAL_SCHEMES:
         return None
     from mivecc_agents.signal_dqn import HeldPhases, decision_steps
 
     policy = policies["signal"]
-    return HeldPhases(policy, decision_steps(policy.decision_period_s, dt_s))
+    if hasattr(policy, "for_grid"):
+        policy = policy.for_grid(cfg.rows, cfg.cols)
+    return HeldPhases(policy, decision_steps(policy.decision_period_s, cfg.dt_s))
 
 
 def _progress_bar(progress: bool, steps: int, desc: str) -> Any:
@@ -292,8 +300,8 @@ def evaluate_scheme(
     Args:
         scheme: one of :data:`SCHEMES`: ``"E"``, ``"EE"``, ``"EEC"``, ``"fixed-time"``,
             ``"actuated"``, ``"max-pressure"``, ``"reservation"``, ``"optimisation"``,
-            ``"pa-dqn"`` (``"signalized"`` = ``"fixed-time"``). All run on the same seeded
-            demand.
+            ``"pa-dqn"``, ``"coder"`` (``"signalized"`` = ``"fixed-time"``). All run on the
+            same seeded demand.
         rows: intersection rows of the grid.
         cols: intersection columns of the grid.
         density: arrival rate per entry lane [veh/lane/h].
@@ -301,8 +309,9 @@ def evaluate_scheme(
         seed: seed of ``env.reset``.
         policies: ``"edge"`` / ``"cloud"`` -> policy callable (see the module docstring);
             a coordinator that the scheme uses and that has no policy acts with zeros.
-            ``"signal"``: the learned signal policy of ``pa-dqn`` (required there; a
-            :class:`mivecc_agents.signal_dqn.SignalDQNPolicy` or any callable ``(n, 15)
+            ``"signal"``: the learned signal policy of ``pa-dqn`` or ``coder`` (required
+            there; a :class:`mivecc_agents.signal_dqn.SignalDQNPolicy`, a
+            :class:`mivecc_agents.coder.CoderPolicy` or any callable ``(n, 15)
             observations -> (n,)`` phases with a ``decision_period_s``).
         progress: show a tqdm progress bar on stderr.
         warn: print the zero-coordinator-action warning to stderr when it applies.
@@ -337,7 +346,7 @@ def evaluate_scheme(
         coordinator_actions = "policy"
     edge_policy = policies.get("edge") if "edge" in needed else None
     cloud_policy = policies.get("cloud") if "cloud" in needed else None
-    held = _held_phases(scheme, policies, cfg.dt_s)
+    held = _held_phases(scheme, policies, cfg)
     signal_agents = list(env.signal_agents)
 
     # Built once: the zero actions of every coordinator (policy outputs overwrite entries per
@@ -460,7 +469,7 @@ def evaluate_batch(
     )
     cfg = env.config
     coordinator_actions = _coordinator_actions(scheme, needed, policies, warn)
-    held = _held_phases(scheme, policies, cfg.dt_s)
+    held = _held_phases(scheme, policies, cfg)
     if held is not None:
         coordinator_actions = "policy"
     a_max = cfg.a_max_mps2

@@ -77,18 +77,20 @@ def shipped_policy_path(rows: int = 1, cols: int = 1) -> Path:
 
 
 class SignalQNetwork(nn.Module):
-    """Q-values ``(..., 2)`` (one per phase) of signal observations ``(..., 15)``.
+    """Q-values ``(..., n_actions)`` of observations ``(..., n_in)``: one per phase of a signal
+    observation ``(..., 15)`` for PA-DQN, one per joint phase of a region for Coder.
 
-    The observation is divided by its bounds (:func:`mivecc_env.signal_agents.
-    observation_bounds`, each at least 1) before two hidden ReLU layers.
+    The observation is divided by its bounds ``high`` (``(n_in,)``, each taken as at least 1;
+    :func:`mivecc_env.signal_agents.observation_bounds`) before two hidden ReLU layers.
     """
 
-    def __init__(self, high: torch.Tensor, hidden: int) -> None:
+    def __init__(self, high: torch.Tensor, hidden: int,
+                 n_actions: int = signal_agents.N_PHASES) -> None:
         super().__init__()
         self.register_buffer("scale", 1.0 / high.to(torch.float32).clamp(min=1.0))
         n_in = high.numel()
         self.net = nn.Sequential(nn.Linear(n_in, hidden), nn.ReLU(), nn.Linear(hidden, hidden),
-                                 nn.ReLU(), nn.Linear(hidden, signal_agents.N_PHASES))
+                                 nn.ReLU(), nn.Linear(hidden, n_actions))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.net(obs * self.scale)
@@ -98,11 +100,14 @@ class SignalDQNPolicy:
     """A trained PA-DQN policy: ``policy(obs)`` -> the greedy phase of every row.
 
     Attributes:
+        scheme: the evaluation scheme it is for (``"pa-dqn"``).
         net: the Q-network.
         decision_period_s: time between two decisions [s] (the training's).
         settings: the training settings (a dict).
         checkpoint: the file it was loaded from ("" if trained in this process).
     """
+
+    scheme = "pa-dqn"
 
     def __init__(self, net: SignalQNetwork, decision_period_s: float,
                  settings: dict[str, Any], checkpoint: str = "") -> None:
@@ -194,33 +199,62 @@ def train_signal_dqn(settings: SignalDQNSettings,
     ``backlog`` and ``avg_travel_velocity_mps`` (means over the episode's environments),
     ``loss`` (mean TD loss of the episode's updates; NaN before the first), ``wall_s``.
     """
-    from mivecc_env.batched import BatchedMiVeCCEnv
-
     settings.check()
     cfg = settings.env_config()
-    period = decision_steps(settings.decision_period_s, cfg.dt_s)
-    densities = [settings.densities[i % len(settings.densities)] for i in range(settings.batch)]
-    env = BatchedMiVeCCEnv(cfg, batch_size=settings.batch, densities=densities, observe=(),
-                           signal_agents=True, signal_reward="throughput")
+    env = training_env(settings, cfg)
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(settings.seed)
-        learner = _Learner(settings, _high(cfg))
+        learner = DQNLearner(settings, SignalQNetwork(_high(cfg), settings.hidden))
         rng = np.random.default_rng(settings.seed)
-        log = _train_loop(settings, env, learner, period, rng, on_episode)
+
+        def act(obs: np.ndarray, eps: float) -> np.ndarray:
+            return explore(rng, learner.greedy(obs.reshape(-1, obs.shape[-1])), eps
+                           ).reshape(obs.shape[:2])
+
+        def learn(obs: np.ndarray, phases: np.ndarray, reward: np.ndarray,
+                  next_obs: np.ndarray) -> float | None:
+            n_in = obs.shape[-1]
+            learner.add(obs.reshape(-1, n_in), phases.reshape(-1), reward.reshape(-1),
+                        next_obs.reshape(-1, n_in))
+            return learner.update()
+
+        log = run_episodes(settings, env, act, learn, on_episode)
     policy = SignalDQNPolicy(learner.qnet, settings.decision_period_s, settings.to_dict())
     return policy, log
 
 
-class _Learner:
-    """The Q-network, TorchRL's double-DQN loss, its target update, optimiser and buffer."""
+def training_env(settings: SignalDQNSettings, cfg: MiVeCCConfig) -> Any:
+    """``settings.batch`` signalized environments with signal agents and the throughput
+    reward, the densities of ``settings.densities`` cycled over them."""
+    from mivecc_env.batched import BatchedMiVeCCEnv
 
-    def __init__(self, settings: SignalDQNSettings, high: torch.Tensor) -> None:
+    densities = [settings.densities[i % len(settings.densities)] for i in range(settings.batch)]
+    return BatchedMiVeCCEnv(cfg, batch_size=settings.batch, densities=densities, observe=(),
+                            signal_agents=True, signal_reward="throughput")
+
+
+def explore(rng: np.random.Generator, phases: np.ndarray, eps: float) -> np.ndarray:
+    """``phases`` with each entry replaced by a uniformly random phase with probability
+    ``eps`` (epsilon-greedy exploration, per intersection)."""
+    chosen = rng.random(phases.shape) < eps
+    return np.where(chosen, rng.integers(0, signal_agents.N_PHASES, phases.shape), phases)
+
+
+class DQNLearner:
+    """A Q-network, TorchRL's double-DQN loss, its soft target update, Adam and a replay
+    buffer; :meth:`add` stores transitions, :meth:`update` trains, :meth:`greedy` acts.
+
+    Parameters of ``qnet`` with ``requires_grad`` off stay as they are (Coder's aggregation
+    stage trains its weighting network over frozen regional networks).
+    """
+
+    def __init__(self, settings: SignalDQNSettings, qnet: nn.Module) -> None:
         from tensordict.nn import TensorDictModule, TensorDictSequential
         from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
         from torchrl.modules import QValueModule
         from torchrl.objectives import DQNLoss, SoftUpdate
 
-        self.qnet = SignalQNetwork(high, settings.hidden)
+        self.qnet = qnet
         module = TensorDictModule(self.qnet, in_keys=["observation"], out_keys=["action_value"])
         policy = TensorDictSequential(module, QValueModule(action_space="categorical"))
         self.loss = DQNLoss(policy, action_space="categorical", delay_value=True,
@@ -234,7 +268,7 @@ class _Learner:
 
     def add(self, obs: np.ndarray, action: np.ndarray, reward: np.ndarray,
             next_obs: np.ndarray) -> None:
-        """Store transitions (rows of agents; no terminal states: the flow continues)."""
+        """Store transitions (rows; no terminal states: the flow continues)."""
         from tensordict import TensorDict
 
         n = obs.shape[0]
@@ -262,38 +296,52 @@ class _Learner:
         return total / self.settings.updates_per_decision
 
     def greedy(self, obs: np.ndarray) -> np.ndarray:
+        """The action of highest Q-value of every row of ``obs``."""
         with torch.no_grad():
             return self.qnet(torch.from_numpy(obs)).argmax(-1).numpy().astype(np.int64)
 
 
-def _train_loop(settings: SignalDQNSettings, env: Any, learner: _Learner, period: int,
-                rng: np.random.Generator, on_episode: Callable[[dict[str, float]], None] | None,
-                ) -> list[dict[str, float]]:
-    b, n_int = env.batch_size, env.n_edge
+def run_episodes(settings: SignalDQNSettings, env: Any,
+                 act: Callable[[np.ndarray, float], np.ndarray],
+                 learn: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], float | None],
+                 on_episode: Callable[[dict[str, float]], None] | None, *,
+                 episodes: int | None = None, eps_start: float | None = None,
+                 first_seed: int = FIRST_TRAIN_SEED) -> list[dict[str, float]]:
+    """The training loop of the signal learners: ``episodes`` (default ``settings.episodes``)
+    episodes of ``settings.episode_steps`` steps, each from an empty network on fresh seeds
+    (``first_seed`` + ``settings.seed`` x 1e6 + episode x batch); a decision every
+    ``settings.decision_period_s``.
+
+    At a decision ``act(obs, eps)`` returns the phases ``(B, n_int)`` for the signal
+    observations ``(B, n_int, 15)`` and the exploration probability ``eps`` (linear from
+    ``eps_start``, default ``settings.eps_start``, to ``settings.eps_end`` over
+    ``settings.eps_decay_fraction`` of the decisions); they are held for the period, then
+    ``learn(obs, phases, reward, next_obs)`` gets the reward per intersection (vehicles through
+    its centre in the period x ``settings.reward_scale``, ``(B, n_int)``) and returns the mean
+    loss of its updates (None before the first). One log row per episode
+    (:func:`train_signal_dqn`).
+    """
+    episodes = settings.episodes if episodes is None else episodes
+    eps_start = settings.eps_start if eps_start is None else eps_start
+    period = decision_steps(settings.decision_period_s, env.config.dt_s)
     decisions_per_episode = settings.episode_steps // period
-    total = settings.episodes * decisions_per_episode
-    decay = max(1.0, settings.eps_decay_fraction * total)
+    decay = max(1.0, settings.eps_decay_fraction * episodes * decisions_per_episode)
     log, done_decisions, t0 = [], 0, time.perf_counter()
-    for episode in range(settings.episodes):
-        first = FIRST_TRAIN_SEED + settings.seed * 1_000_000 + episode * settings.batch
-        out = env.reset(seed=first)
-        obs = out.signal_obs.reshape(b * n_int, -1)
-        rewards, losses, eps = [], [], settings.eps_start
+    for episode in range(episodes):
+        out = env.reset(seed=first_seed + settings.seed * 1_000_000 + episode * settings.batch)
+        obs = out.signal_obs
+        rewards, losses, eps = [], [], eps_start
         for _ in range(decisions_per_episode):
             frac = min(1.0, done_decisions / decay)
-            eps = settings.eps_start + frac * (settings.eps_end - settings.eps_start)
-            action = learner.greedy(obs)
-            explore = rng.random(action.shape) < eps
-            action = np.where(explore, rng.integers(0, signal_agents.N_PHASES, action.shape),
-                              action)
-            reward = np.zeros(b * n_int)
+            eps = eps_start + frac * (settings.eps_end - eps_start)
+            phases = act(obs, eps)
+            reward = np.zeros(phases.shape)
             for _ in range(period):
-                out = env.step(signal_action=action.reshape(b, n_int))
-                reward += out.signal_reward.reshape(-1)
+                out = env.step(signal_action=phases)
+                reward += out.signal_reward
             reward *= settings.reward_scale
-            next_obs = out.signal_obs.reshape(b * n_int, -1)
-            learner.add(obs, action, reward, next_obs)
-            loss = learner.update()
+            next_obs = out.signal_obs
+            loss = learn(obs, phases, reward, next_obs)
             if loss is not None:
                 losses.append(loss)
             rewards.append(float(reward.mean()))
@@ -325,7 +373,8 @@ def write_log(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
 
 
 def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
-    """A PNG of the training log: reward per decision and throughput per episode."""
+    """A PNG of a training log: reward per decision and throughput per episode (Coder's
+    logs, with a ``stage`` column, get a line where the aggregation stage begins)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -335,11 +384,19 @@ def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> P
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     top.plot(episodes, [r["reward_per_decision"] for r in rows], marker="o", ms=3)
     top.set_ylabel("reward per decision\n(vehicles through x scale)")
-    top.set_title("PA-DQN training (exploration included)")
     bottom.plot(episodes, [r["throughput"] for r in rows], marker="o", ms=3, label="throughput")
     bottom.plot(episodes, [r["backlog"] for r in rows], marker="s", ms=3, label="entry backlog")
     bottom.set_ylabel("vehicles per environment")
     bottom.set_xlabel("episode")
+    second_stage = [r["episode"] for r in rows if r.get("stage") == 2]
+    if second_stage:
+        top.set_title("Coder training (exploration included): regional stage, then "
+                      "aggregation")
+        top.axvline(second_stage[0] - 0.5, color="grey", ls="--", lw=1)
+        bottom.axvline(second_stage[0] - 0.5, color="grey", ls="--", lw=1,
+                       label="aggregation stage begins")
+    else:
+        top.set_title("PA-DQN training (exploration included)")
     bottom.legend()
     for ax in (top, bottom):
         ax.grid(alpha=0.3)

@@ -6,6 +6,7 @@ import csv
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -131,7 +132,39 @@ def test_shipped_comparison_is_complete_and_its_table_rebuilds(tmp_path: Path) -
                             "--out", str(tmp_path)]) == 0
     with open(tmp_path / "comparison_table.csv", newline="", encoding="utf-8") as fh:
         table = list(csv.DictReader(fh))
-    assert len(table) == 2 * len(comparison.DENSITIES) * len(comparison.SCHEMES)
+    cells = sum(comparison.runs_on(s, g, g) for g in (1, 3) for s in comparison.SCHEMES)
+    assert len(table) == cells * len(comparison.DENSITIES)  # Coder on 3x3 only
     assert all(r["seeds"] == "0 1 2" and r["steps"] == "3000" for r in table)
     assert (tmp_path / "comparison_table.csv").read_text() == (
         docs / "comparison_table.csv").read_text()
+
+
+def test_coder_runs_on_grids_with_regions_and_its_gain_table() -> None:
+    assert not comparison.runs_on("coder", 1, 1) and comparison.runs_on("coder", 3, 3)
+    assert comparison.runs_on("fixed-time", 1, 1)
+    rows = [{"scheme": s, "rows": str(g), "cols": str(g), "density": "900", "seed": str(seed),
+             "steps": "3000", "avg_travel_velocity_mps": str(v), "upper_bound_mps": "12.0",
+             "collisions": "0", "throughput_vph": "1000"}
+            for g, s, seed, v in ((3, "EEC", 0, 12.0), (3, "EEC", 1, 12.0), (3, "coder", 0, 6.0),
+                                  (3, "coder", 1, 4.0), (3, "fixed-time", 0, 4.0),
+                                  (1, "EEC", 0, 12.0), (1, "fixed-time", 0, 6.0))]
+    md = comparison.markdown(rows, [(1, 1), (3, 3)], ["EEC", "fixed-time", "coder"], [900])
+    first, second = md.split("### 3x3: average travel velocity [m/s]")
+    assert "| density | EEC | fixed-time | upper bound |" in first  # no coder column on 1x1
+    assert "EEC vs Coder" not in first
+    assert "| density | EEC | fixed-time | coder | upper bound |" in second
+    # 12 against the mean of 6 and 4 on seeds 0 and 1; against 4 on seed 0 only
+    assert "| 900 | +140.0 % | +146.6 % | +200.0 % |" in second
+
+
+def test_a_zero_backlog_of_a_fresh_run_is_zero_not_missing() -> None:
+    """Runs simulated in the same process carry numbers, not CSV strings: a backlog of 0.0 is
+    a full entry, not a missing value."""
+    run = {"scheme": "coder", "rows": 3, "cols": 3, "density": 300.0, "seed": 0, "steps": 3000,
+           "avg_travel_velocity_mps": 7.0, "upper_bound_mps": 12.9, "collisions": 0,
+           "throughput_vph": 2600.0, "backlog": 0.0, "arrived": 301,
+           "avg_travel_velocity_no_wait_mps": 7.4}
+    (t,) = comparison.summarise([run], [(3, 3)], ["coder"], [300])
+    assert (t["backlog_mean"], t["entered_share"]) == (0.0, 1.0)
+    (t,) = comparison.summarise([{**run, "backlog": ""}], [(3, 3)], ["coder"], [300])
+    assert np.isnan(t["backlog_mean"]) and np.isnan(t["entered_share"])

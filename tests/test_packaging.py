@@ -62,7 +62,7 @@ def test_shipped_policies_of_both_models_are_package_data() -> None:
     for rel in ("pretrained/edge.pt", "pretrained/cloud.pt", "pretrained/released/edge.pt",
                 "pretrained/released/cloud.pt", "pretrained/shield/edge.pt",
                 "pretrained/released/shield/edge.pt", "pretrained/signal_dqn_1x1.pt",
-                "pretrained/signal_dqn_3x3.pt"):
+                "pretrained/signal_dqn_3x3.pt", "pretrained/coder_3x3.pt"):
         assert _shipped(f"mivecc_agents/{rel}", globs), rel
         assert (ROOT / "mivecc_agents" / rel).is_file(), rel
 

@@ -1,0 +1,325 @@
+"""Coder: cooperative deep RL signal control of a grid, the paper's multi-intersection comparator.
+
+The paper's Table eff_imp_rate compares MiVeCC-EEC on 3x3 with Coder (Tan et al., "Cooperative
+deep reinforcement learning for large-scale traffic grid signal control", IEEE T-CYB 2020):
+regional agents each learn a Q-function over a small region with few actions, and a global
+agent aggregates them into the Q-function of the whole grid. No implementation is public; this
+module is this package's reading of that design, on the signal agents of
+:mod:`mivecc_env.signal_agents` (``control="signalized"``):
+
+* **regions**: every 2x2 block of neighbouring intersections (:func:`grid_regions`; four
+  overlapping blocks on 3x3). A regional agent observes its four intersections' signal
+  observations (4 x 15 features) and has 16 actions, the joint phase of its block.
+* **global Q**: for a joint phase ``a`` of all ``n`` intersections,
+  ``Q(s, a) = sum_r w_r(s) Q_region(s_r, a_r)``: each region's value of its part of ``a``,
+  weighted by the aggregation network (``w_r >= 0`` from the region's observation and the grid's
+  mean observation; all 1 before the aggregation stage). The decision is the best of the ``2^n``
+  joint phases, searched exhaustively (hence at most :data:`MAX_INTERSECTIONS` intersections).
+* **decision** every ``decision_period_s`` (10 s), held in between, as PA-DQN
+  (:class:`mivecc_agents.signal_dqn.HeldPhases`).
+* **training**, two stages with TorchRL's double-DQN loss (:class:`~mivecc_agents.signal_dqn.
+  DQNLearner`) on the PA-DQN training loop and settings (:class:`CoderSettings`):
+  1. *regional*: one regional network shared by all regions learns from every region's
+     transitions (its observation, its joint phase, the vehicles through its four centres in
+     the period x ``reward_scale``); the grid acts on the sum of the regional values
+     (``w_r = 1``), epsilon-greedy per intersection.
+  2. *aggregation*: the regional network frozen, the aggregation network learns the global Q
+     from the grid's reward (vehicles through all centres x ``reward_scale``), exploration from
+     ``global_eps_start``, on training seeds apart from the first stage's.
+
+A trained policy is :class:`CoderPolicy`; ``mivecc evaluate --scheme coder`` runs the shipped one
+(trained on 3x3, :func:`shipped_policy_path`), ``mivecc train-coder`` trains one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from mivecc_agents.checkpoints import (
+    CheckpointError,
+    read_checkpoint,
+    require_keys,
+    save_checkpoint,
+)
+from mivecc_agents.coder_settings import MAX_INTERSECTIONS, CoderSettings, check_coder_grid
+from mivecc_agents.signal_dqn import (
+    FIRST_TRAIN_SEED,
+    SHIPPED_DIR,
+    DQNLearner,
+    SignalQNetwork,
+    explore,
+    run_episodes,
+    training_env,
+)
+from mivecc_env import signal_agents
+
+__all__ = [
+    "MAX_INTERSECTIONS",
+    "CoderPolicy",
+    "CoderSettings",
+    "GlobalQ",
+    "grid_regions",
+    "joint_phases",
+    "shipped_policy_path",
+    "train_coder",
+]
+
+#: ``kind`` of a Coder checkpoint.
+CODER_KIND = "coder"
+#: Intersections of a region (a 2x2 block).
+REGION_SIZE = 4
+#: Joint phases of a region.
+REGION_ACTIONS = signal_agents.N_PHASES ** REGION_SIZE
+#: First training seed of the aggregation stage (apart from the regional stage's).
+AGGREGATION_SEED_OFFSET = 500_000
+#: Aggregation output before the softplus that gives a weight of 1 (log(e - 1)).
+_UNIT_WEIGHT_LOGIT = math.log(math.e - 1.0)
+
+
+def shipped_policy_path() -> Path:
+    """The shipped Coder policy (``pretrained/coder_3x3.pt``, trained on 3x3)."""
+    return SHIPPED_DIR / "coder_3x3.pt"
+
+
+def grid_regions(rows: int, cols: int) -> np.ndarray:
+    """``(n_regions, 4)`` intersection ids (row-major, ``r * cols + c``) of every 2x2 block of
+    the grid, each block's ids in the order top-left, top-right, bottom-left, bottom-right
+    (rows counted from the grid's first row). ConfigError for a grid Coder cannot run on."""
+    check_coder_grid(rows, cols)
+    return np.array([[r * cols + c, r * cols + c + 1, (r + 1) * cols + c, (r + 1) * cols + c + 1]
+                     for r in range(rows - 1) for c in range(cols - 1)], dtype=np.int64)
+
+
+def joint_phases(n_int: int) -> np.ndarray:
+    """``(2^n_int, n_int)`` every joint phase of ``n_int`` intersections: row ``a`` holds bit
+    ``i`` of ``a`` for intersection ``i``."""
+    return (np.arange(2 ** n_int)[:, None] >> np.arange(n_int)[None, :]) & 1
+
+
+def joint_index(phases: np.ndarray) -> np.ndarray:
+    """The index (row of :func:`joint_phases`) of joint phases ``(..., n)``."""
+    return (np.asarray(phases, dtype=np.int64) << np.arange(phases.shape[-1])).sum(-1)
+
+
+class AggregationNetwork(nn.Module):
+    """The weight ``w_r >= 0`` of each region from its observation ``(..., 60)`` and the grid's
+    mean observation ``(..., 15)`` (one hidden ReLU layer, softplus); starts at ``w_r = 1``."""
+
+    def __init__(self, high: torch.Tensor, hidden: int) -> None:
+        super().__init__()
+        region_high = high.repeat(REGION_SIZE + 1)
+        self.register_buffer("scale", 1.0 / region_high.to(torch.float32).clamp(min=1.0))
+        self.net = nn.Sequential(nn.Linear(region_high.numel(), hidden), nn.ReLU(),
+                                 nn.Linear(hidden, 1))
+        with torch.no_grad():
+            self.net[-1].weight.mul_(0.01)
+            self.net[-1].bias.fill_(_UNIT_WEIGHT_LOGIT)
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return nn.functional.softplus(self.net(features * self.scale))
+
+
+class GlobalQ(nn.Module):
+    """Q-values ``(..., 2^n)`` of the joint phases of a grid from its signal observations
+    flattened, ``(..., n * 15)`` (module docstring: ``sum_r w_r Q_region(s_r, a_r)``; ``w_r = 1``
+    without an aggregation network)."""
+
+    def __init__(self, regional: SignalQNetwork, aggregation: AggregationNetwork | None,
+                 rows: int, cols: int) -> None:
+        super().__init__()
+        self.regional = regional
+        self.aggregation = aggregation
+        self.n_int = rows * cols
+        self.regions = torch.from_numpy(grid_regions(rows, cols))
+        bits = joint_phases(self.n_int)[:, grid_regions(rows, cols)]  # (A, R, 4)
+        self.register_buffer("region_action", torch.from_numpy(joint_index(bits).T.copy()))
+
+    def region_obs(self, obs: torch.Tensor) -> torch.Tensor:
+        """``(..., R, 60)`` each region's observations from ``(..., n * 15)``."""
+        per_int = obs.reshape(*obs.shape[:-1], self.n_int, signal_agents.OBS_DIM)
+        return per_int[..., self.regions, :].flatten(-2)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        region_obs = self.region_obs(obs)
+        q_region = self.regional(region_obs)  # (..., R, 16)
+        index = self.region_action.expand(*q_region.shape[:-1], -1)
+        q_joint = q_region.gather(-1, index)  # (..., R, A)
+        if self.aggregation is None:
+            return q_joint.sum(-2)
+        per_int = obs.reshape(*obs.shape[:-1], self.n_int, signal_agents.OBS_DIM)
+        grid_mean = per_int.mean(-2, keepdim=True).expand(*region_obs.shape[:-1], -1)
+        weights = self.aggregation(torch.cat([region_obs, grid_mean], dim=-1))  # (..., R, 1)
+        return (weights * q_joint).sum(-2)
+
+
+class CoderPolicy:
+    """A trained Coder policy: ``policy(obs)`` -> the phases ``(n,)`` of the best joint phase
+    for the grid's signal observations ``(n, 15)`` (ties: the lowest joint index).
+
+    Attributes:
+        rows, cols: the grid it acts on (:meth:`for_grid` gives the policy on another grid).
+        decision_period_s: time between two decisions [s] (the training's).
+        settings: the training settings (a dict).
+        checkpoint: the file it was loaded from ("" if trained in this process).
+    """
+
+    #: The evaluation scheme this policy is for.
+    scheme = "coder"
+
+    def __init__(self, regional: SignalQNetwork, aggregation: AggregationNetwork,
+                 decision_period_s: float, settings: dict[str, Any], checkpoint: str = "",
+                 rows: int | None = None, cols: int | None = None) -> None:
+        self.regional = regional.eval()
+        self.aggregation = aggregation.eval()
+        self.decision_period_s = float(decision_period_s)
+        self.settings = settings
+        self.checkpoint = checkpoint
+        self.rows = int(settings["rows"] if rows is None else rows)
+        self.cols = int(settings["cols"] if cols is None else cols)
+        self._q = GlobalQ(self.regional, self.aggregation, self.rows, self.cols)
+        self._phases = joint_phases(self.rows * self.cols)
+
+    def for_grid(self, rows: int, cols: int) -> CoderPolicy:
+        """The same networks on a ``rows`` x ``cols`` grid (ConfigError if Coder cannot run
+        there)."""
+        if (rows, cols) == (self.rows, self.cols):
+            return self
+        return CoderPolicy(self.regional, self.aggregation, self.decision_period_s,
+                           self.settings, self.checkpoint, rows, cols)
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        arr = np.asarray(obs, dtype=np.float32)
+        n_int = self.rows * self.cols
+        if arr.shape != (n_int, signal_agents.OBS_DIM):
+            raise ValueError(f"obs: expected shape ({n_int}, {signal_agents.OBS_DIM}) for the "
+                             f"{self.rows}x{self.cols} grid, got {arr.shape}")
+        with torch.no_grad():
+            best = int(self._q(torch.from_numpy(arr.reshape(-1))).argmax())
+        return self._phases[best].astype(np.int64)
+
+    def save(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
+        """Write the policy as a mivecc checkpoint (``kind="coder"``)."""
+        return save_checkpoint(path, {
+            "kind": CODER_KIND, "decision_period_s": self.decision_period_s,
+            "hidden": self.regional.net[0].out_features,
+            "global_hidden": self.aggregation.net[0].out_features, "settings": self.settings,
+            "regional": self.regional.state_dict(),
+            "aggregation": self.aggregation.state_dict(), "extra": extra or {},
+        })
+
+    @classmethod
+    def load(cls, path: str | Path) -> CoderPolicy:
+        """Read a policy written by :meth:`save`; :class:`CheckpointError` (naming the file)
+        for a missing, corrupt or foreign file."""
+        data = read_checkpoint(path, ("kind",))
+        if data["kind"] != CODER_KIND:
+            raise CheckpointError(f"{path}: holds the {data['kind']!r} policy, but a "
+                                  f"{CODER_KIND!r} policy is needed")
+        require_keys(path, data, ("decision_period_s", "hidden", "global_hidden", "settings",
+                                  "regional", "aggregation"))
+        try:
+            hidden, global_hidden = int(data["hidden"]), int(data["global_hidden"])
+            period = float(data["decision_period_s"])
+            if hidden < 1 or global_hidden < 1 or not period > 0:
+                raise ValueError(f"hidden {hidden}, global_hidden {global_hidden}, decision "
+                                 f"period {period}")
+            ones = torch.ones(signal_agents.OBS_DIM)
+            regional = SignalQNetwork(ones.repeat(REGION_SIZE), hidden, REGION_ACTIONS)
+            regional.load_state_dict(data["regional"])
+            aggregation = AggregationNetwork(ones, global_hidden)
+            aggregation.load_state_dict(data["aggregation"])
+            settings = dict(data["settings"])
+            check_coder_grid(int(settings["rows"]), int(settings["cols"]))
+        except (TypeError, ValueError, RuntimeError, KeyError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            raise CheckpointError(f"{path}: corrupt Coder policy: {type(exc).__name__}: "
+                                  f"{first[:120]}") from exc
+        return cls(regional, aggregation, period, settings, checkpoint=str(path))
+
+
+def train_coder(settings: CoderSettings,
+                on_episode: Callable[[dict[str, float]], None] | None = None,
+                ) -> tuple[CoderPolicy, list[dict[str, float]]]:
+    """Train a Coder policy (module docstring); returns it and one log row per episode.
+
+    Deterministic for a given ``settings`` (torch's global random state is used inside
+    :func:`torch.random.fork_rng` and left as it was). Log rows: those of
+    :func:`mivecc_agents.signal_dqn.train_signal_dqn` and ``stage`` (1 regional, 2
+    aggregation); ``episode`` and ``wall_s`` count on over both stages.
+    """
+    settings.check()
+    cfg = settings.env_config()
+    env = training_env(settings, cfg)
+    high = torch.from_numpy(signal_agents.observation_bounds(cfg)[1])
+    rows, cols = settings.rows, settings.cols
+    regions = grid_regions(rows, cols)
+    phases_of = joint_phases(rows * cols)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(settings.seed)
+        regional = SignalQNetwork(high.repeat(REGION_SIZE), settings.hidden, REGION_ACTIONS)
+        aggregation = AggregationNetwork(high, settings.global_hidden)
+        rng = np.random.default_rng(settings.seed)
+        log: list[dict[str, float]] = []
+
+        def stage_rows(stage: int) -> Callable[[dict[str, float]], None]:
+            wall_before = log[-1]["wall_s"] if log else 0.0
+
+            def record(row: dict[str, float]) -> None:
+                row = {**row, "episode": len(log) + 1, "stage": stage,
+                       "wall_s": row["wall_s"] + wall_before}
+                log.append(row)
+                if on_episode is not None:
+                    on_episode(row)
+            return record
+
+        def greedy_phases(q: GlobalQ, obs: np.ndarray) -> np.ndarray:
+            with torch.no_grad():
+                best = q(torch.from_numpy(obs.reshape(obs.shape[0], -1))).argmax(-1).numpy()
+            return phases_of[best]
+
+        # Stage 1: the regional network, the grid acting on the plain sum of regional values.
+        regional_learner = DQNLearner(settings, regional)
+        summed = GlobalQ(regional, None, rows, cols)
+
+        def act_regional(obs: np.ndarray, eps: float) -> np.ndarray:
+            return explore(rng, greedy_phases(summed, obs), eps)
+
+        def learn_regional(obs: np.ndarray, phases: np.ndarray, reward: np.ndarray,
+                           next_obs: np.ndarray) -> float | None:
+            width = REGION_SIZE * signal_agents.OBS_DIM
+            regional_learner.add(obs[:, regions].reshape(-1, width),
+                                 joint_index(phases[:, regions]).reshape(-1),
+                                 reward[:, regions].sum(-1).reshape(-1),
+                                 next_obs[:, regions].reshape(-1, width))
+            return regional_learner.update()
+
+        run_episodes(settings, env, act_regional, learn_regional, stage_rows(1))
+
+        # Stage 2: the aggregation network over the frozen regional network.
+        regional.requires_grad_(False)
+        weighted = GlobalQ(regional, aggregation, rows, cols)
+        global_learner = DQNLearner(settings, weighted)
+
+        def act_global(obs: np.ndarray, eps: float) -> np.ndarray:
+            return explore(rng, greedy_phases(weighted, obs), eps)
+
+        def learn_global(obs: np.ndarray, phases: np.ndarray, reward: np.ndarray,
+                         next_obs: np.ndarray) -> float | None:
+            b = obs.shape[0]
+            global_learner.add(obs.reshape(b, -1), joint_index(phases), reward.sum(-1),
+                               next_obs.reshape(b, -1))
+            return global_learner.update()
+
+        run_episodes(settings, env, act_global, learn_global, stage_rows(2),
+                     episodes=settings.global_episodes, eps_start=settings.global_eps_start,
+                     first_seed=FIRST_TRAIN_SEED + AGGREGATION_SEED_OFFSET)
+    regional.requires_grad_(True)
+    return CoderPolicy(regional, aggregation, settings.decision_period_s,
+                       settings.to_dict()), log
