@@ -18,6 +18,10 @@ demand. Writes to ``--out``:
 * ``comparison_<grid>.png``: average travel velocity (seed sd as error bars), throughput and
   collisions vs density.
 
+``--comparator-entry slowed`` runs the comparators with ``comparator_entry="slowed"`` (they
+enter at MiVeCC's clearance, slower into a short gap); runs are then reused from the CSVs only
+where they were made with the same entry rule (MiVeCC's runs do not depend on it).
+
 Runs already in a CSV given with ``--from-csv`` are reused when grid, scheme, density, seed and
 steps match, so only the missing runs are simulated; when several CSVs hold a run, the LAST one
 given wins. Tables and figures are rebuilt from CSVs alone (seconds) with ``--tabulate-only``,
@@ -64,13 +68,17 @@ TABLE_KEYS = ("grid", "density", "scheme", "runs", "seeds", "steps", "velocity_m
               "entered_share", "source")
 
 
-def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
+#: MiVeCC's schemes: ``comparator_entry`` does not change their runs.
+MIVECC_SCHEMES = ("E", "EE", "EEC")
+
+
+def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per episode
     from mivecc_agents.evaluation import evaluate_scheme
 
-    scheme, rows, cols, density, steps, seed = job
+    scheme, rows, cols, density, steps, seed, entry = job
     policies = {}
     if scheme in ("EE", "EEC"):
         from mivecc_agents.policies import pretrained_policies
@@ -80,8 +88,9 @@ def _run(job: tuple[str, int, int, float, int, int]) -> dict[str, Any]:
         from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
 
         policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
+    entry_kw = {} if scheme in MIVECC_SCHEMES else {"comparator_entry": entry}
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
-                          progress=False, warn=False)
+                          progress=False, warn=False, **entry_kw)
     out["source"] = "simulated"
     return out
 
@@ -106,11 +115,14 @@ def _key(row: dict[str, Any]) -> tuple:
             int(float(row["density"])), int(float(row["seed"])), int(float(row["steps"])))
 
 
-def load_rows(paths: Sequence[Path], model: str = "paper") -> dict[tuple, dict[str, Any]]:
+def load_rows(paths: Sequence[Path], model: str = "paper",
+              comparator_entry: str = "stop_clearance") -> dict[tuple, dict[str, Any]]:
     """Earlier runs by (scheme, rows, cols, density, seed, steps); a later path wins.
 
     Only runs of the env ``model`` are kept (a row without a ``model`` column ran the default,
-    ``"paper"``). A row without a ``source`` gets the path it was read from.
+    ``"paper"``), and of the comparators only those with ``comparator_entry`` (a row without
+    the column ran the default, ``"stop_clearance"``; MiVeCC's runs do not depend on it). A
+    row without a ``source`` gets the path it was read from.
     """
     out: dict[tuple, dict[str, Any]] = {}
     for path in paths:
@@ -118,6 +130,9 @@ def load_rows(paths: Sequence[Path], model: str = "paper") -> dict[tuple, dict[s
             for row in csv.DictReader(f):
                 row = dict(row)
                 if (row.get("model") or "paper") != model:
+                    continue
+                entry = row.get("comparator_entry") or "stop_clearance"
+                if row["scheme"] not in MIVECC_SCHEMES and entry != comparator_entry:
                     continue
                 row["scheme"] = ALIASES.get(row["scheme"], row["scheme"])
                 if not row.get("source"):
@@ -192,7 +207,8 @@ def gain(rows: list[dict[str, Any]], grid: tuple[int, int], density: int,
 
 
 def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
-             schemes: Sequence[str], densities: Sequence[int]) -> str:
+             schemes: Sequence[str], densities: Sequence[int],
+             comparator_entry: str = "stop_clearance") -> str:
     """Tables of mean +- sd velocity (and collisions) per grid, density and scheme."""
     table = {(t["grid"], t["density"], t["scheme"]): t
              for t in summarise(rows, grids, schemes, densities)}
@@ -231,7 +247,7 @@ def markdown(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
                          + " |")
         for title, cell in _EXTRA_TABLES:
             lines += ["", *_scheme_table(
-                f"### {name}: {title}",
+                f"### {name}: {title.format(entry=ENTRY_RULES[comparator_entry])}",
                 {(d, s): cell(t) for (grid_name, d, s), t in table.items() if grid_name == name},
                 on_grid, densities)]
         lines += _eec_vs_coder(rows, g, densities)
@@ -267,10 +283,16 @@ _EXTRA_TABLES: tuple[tuple[str, Any], ...] = (
      "better for a higher velocity)",
      lambda t: f"{t['throughput_vph_mean']:.0f} / {t['backlog_mean']:.0f}"),
     ("average travel velocity without the entry wait [m/s] / share of the arrivals that "
-     "entered the network, means over the seeds (the comparators enter a vehicle only with "
-     "room to stop behind a standing one, docs/comparators.md)",
+     "entered the network, means over the seeds ({entry})",
      lambda t: f"{t['velocity_no_wait_mean_mps']:.2f} / {100 * t['entered_share']:.0f} %"),
 )
+#: How the comparators' vehicles entered, by ``comparator_entry`` (in the tables' titles).
+ENTRY_RULES = {
+    "stop_clearance": "the comparators enter a vehicle only with room to stop behind a standing "
+                      "one, docs/comparators.md",
+    "slowed": "comparator_entry=slowed: the comparators enter a vehicle at MiVeCC's clearance, "
+              "slower into a short gap, docs/comparators.md",
+}
 
 
 def _scheme_table(title: str, cells: dict[tuple[int, str], str], schemes: Sequence[str],
@@ -346,6 +368,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     p.add_argument("--model", default="paper", choices=("paper",),
                    help="env model of the runs reused from --from-csv (others are ignored); "
                    "the comparators run the default model")
+    p.add_argument("--comparator-entry", default="stop_clearance",
+                   choices=("stop_clearance", "slowed"),
+                   help="the comparators' entry rule (config comparator_entry; "
+                   "docs/comparators.md: slowed enters at MiVeCC's clearance, slower where the "
+                   "lane's last vehicle is close; default stop_clearance)")
     p.add_argument("--out", type=Path, default=Path("docs/results/comparison"))
     args = p.parse_args(argv)
     cli_args.writable_dir("--out", args.out)
@@ -370,7 +397,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     grids = args.grids
     steps_for = _steps_for(args.steps_for, SCHEMES)
-    known = load_rows(args.from_csv, args.model)
+    known = load_rows(args.from_csv, args.model, args.comparator_entry)
     jobs, rows = [], []
     for (r, c) in grids:
         for d in args.densities:
@@ -383,7 +410,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if key in known:
                         rows.append(known[key])
                     else:
-                        jobs.append((s, r, c, float(d), steps, seed))
+                        jobs.append((s, r, c, float(d), steps, seed, args.comparator_entry))
     if args.tabulate_only:
         jobs = []
     print(f"{len(rows)} runs reused, {len(jobs)} to simulate", flush=True)
@@ -402,7 +429,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _write_csv(table, args.out / "comparison_table.csv", keys=TABLE_KEYS, sort=False)
     command = "python benchmarks/comparison.py " + shlex.join(
         sys.argv[1:] if argv is None else list(argv))
-    md = markdown(rows, grids, args.schemes, args.densities)
+    md = markdown(rows, grids, args.schemes, args.densities, args.comparator_entry)
     header = (f"Written by `{command}` from {len(rows)} runs (sources: "
               f"{', '.join(sorted({str(r.get('source') or '') for r in rows})) or 'none'}; "
               "`simulated` = run by that command or an earlier one whose CSV it reused).\n")

@@ -86,9 +86,9 @@ RESULT_KEYS: tuple[str, ...] = (
 
 #: Config fields reported with every result (the readings of ambiguous parts of the paper).
 CONFIG_READINGS: tuple[str, ...] = (
-    "model", "control", "signal_controller", "end_rule", "same_lane_rule", "edge_sv_gate",
-    "sv_acc_source", "omega", "cloud_pick_population", "cloud_graphs", "cloud_period",
-    "safety_shield",
+    "model", "control", "signal_controller", "comparator_entry", "end_rule", "same_lane_rule",
+    "edge_sv_gate", "sv_acc_source", "omega", "cloud_pick_population", "cloud_graphs",
+    "cloud_period", "safety_shield",
 )
 
 ZERO_ACTION_WARNING = (

@@ -27,6 +27,7 @@ from mivecc_env.model_presets import MODEL_PRESETS
 Scheme = Literal["E", "EE", "EEC"]
 Control = Literal["unsignalized", "signalized", "reservation", "optimisation"]
 SignalController = Literal["fixed-time", "actuated", "max-pressure"]
+ComparatorEntry = Literal["stop_clearance", "slowed"]
 EndRule = Literal["sensible", "literal"]
 AccSource = Literal["front", "ego"]
 CloudPopulation = Literal["conflict_ahead", "before_last_centre", "network"]
@@ -344,6 +345,15 @@ class MiVeCCConfig:
         "reservation: AIM first-come-first-served slots at the conflict points; optimisation: "
         "DOOC-style arrival-time MILP per intersection (both v in [0, v_max], "
         "docs/comparators.md)",
+    )
+    comparator_entry: ComparatorEntry = _choice(
+        "stop_clearance", ("stop_clearance", "slowed"),
+        "how a queued vehicle enters under the comparators (control other than unsignalized): "
+        "stop_clearance: at v_init, once the lane's last vehicle is far enough ahead to stop "
+        "behind it standing (v_init^2 / (2 idm_comfort_decel) + idm_min_gap + vehicle_length); "
+        "slowed: once it is entry_clearance_m ahead (MiVeCC's rule; at least idm_min_gap + "
+        "vehicle_length), at the speed from which it can stop behind it at "
+        "idm_comfort_decel, at most v_init (docs/comparators.md)",
     )
     signal_controller: SignalController = _choice(
         "fixed-time", ("fixed-time", "actuated", "max-pressure"),

@@ -168,3 +168,17 @@ def test_a_zero_backlog_of_a_fresh_run_is_zero_not_missing() -> None:
     assert (t["backlog_mean"], t["entered_share"]) == (0.0, 1.0)
     (t,) = comparison.summarise([{**run, "backlog": ""}], [(3, 3)], ["coder"], [300])
     assert np.isnan(t["backlog_mean"]) and np.isnan(t["entered_share"])
+
+
+def test_runs_are_reused_only_under_the_same_comparator_entry(tmp_path: Path) -> None:
+    path = tmp_path / "runs.csv"
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow([*FIELDS, "comparator_entry"])
+        for scheme, entry in (("E", ""), ("fixed-time", ""), ("reservation", "slowed"),
+                              ("max-pressure", "stop_clearance")):
+            w.writerow([scheme, 1, 1, 900.0, 0, 3000, 9.0, 12.9, 0.0, 0.0, 1000.0, entry])
+    default = {k[0] for k in comparison.load_rows([path])}
+    slowed = {k[0] for k in comparison.load_rows([path], comparator_entry="slowed")}
+    assert default == {"E", "fixed-time", "max-pressure"}  # no column: the default rule
+    assert slowed == {"E", "reservation"}  # MiVeCC's runs do not depend on it

@@ -600,6 +600,15 @@ class Simulator:
         )
         self.active.ravel()[view.vehicle[hit]] = False
 
+    def _entry_speeds(self, nearest: FloatArray) -> FloatArray:
+        """(B, n_lanes) entry speed per lane [m/s]: ``v_init``, or under the comparators with
+        ``comparator_entry="slowed"`` the speed from which the entering vehicle can stop behind
+        the lane's nearest vehicle (at ``nearest`` [m]; :func:`signals.entry_speed`)."""
+        c = self.config
+        if c.control != "unsignalized" and c.comparator_entry == "slowed":
+            return signals.entry_speed(c, nearest)
+        return np.full(nearest.shape, c.v_init_mps)
+
     def _enter_vehicles(self, now_s: FloatArray, events: StepEvents, s_new: FloatArray) -> None:
         """Arrivals into the queues, queue heads into the network where the entry is clear.
         ``s_new``: the positions after the step's move in view order (the compiled plan reads
@@ -615,25 +624,23 @@ class Simulator:
             step_kernels.entry_plan(self.active.ravel(), view.vehicle, view.env, view.lane,
                                     s_new, queued, clearance))
         if plan is not None:  # compiled: same slots, same order as below
-            go, n_new, n_free = plan
+            go, n_new, n_free, nearest = plan
             if (n_new > n_free).any():
                 self._grow(int(n_new.max() + self.active.sum(axis=1).max()))
             step_kernels.place_entries(
                 go, (self.arrivals.times, self.arrivals.entered), now_s,
                 (self.active, self.lane, self.s, self.v, self.a, self.t_arrive, self.t_enter,
-                 self.vid), self.next_vid, c.v_init_mps, c.entry_accel_mps2,
+                 self.vid), self.next_vid, self._entry_speeds(nearest), c.entry_accel_mps2,
             )
             events.entered = n_new
             return
         want = queued > 0
         if not want.any():
             return
-        blocked = np.zeros_like(want)  # the numpy path (no numba)
-        near = self.active & (self.s < clearance)
-        if near.any():
-            bb, kk = np.nonzero(near)
-            blocked[bb, self.lane[bb, kk]] = True
-        go = want & ~blocked
+        nearest = np.full(want.shape, np.inf)  # the numpy path (no numba)
+        bb, kk = np.nonzero(self.active)
+        np.minimum.at(nearest, (bb, self.lane[bb, kk]), self.s[bb, kk])
+        go = want & ~(nearest < clearance)
         env, lane = np.nonzero(go)
         if env.size == 0:
             return
@@ -649,7 +656,7 @@ class Simulator:
         self.active[env, slot] = True
         self.lane[env, slot] = lane
         self.s[env, slot] = 0.0
-        self.v[env, slot] = c.v_init_mps
+        self.v[env, slot] = self._entry_speeds(nearest)[env, lane]
         self.a[env, slot] = c.entry_accel_mps2
         self.t_arrive[env, slot] = t_arr
         self.t_enter[env, slot] = now_s[env]

@@ -96,6 +96,20 @@ def signalized_accel(
 
 
 def entry_clearance_m(config: MiVeCCConfig) -> float:
-    """Entry clearance under signals [m]: room to stop behind a standing vehicle."""
+    """Entry clearance under the comparators [m] (``comparator_entry``): room to stop behind a
+    standing vehicle from ``v_init`` (``"stop_clearance"``), or MiVeCC's ``entry_clearance_m``
+    but at least the standstill gap plus a vehicle length (``"slowed"``, :func:`entry_speed`)."""
+    standstill = config.idm_min_gap_m + config.vehicle_length_m
+    if config.comparator_entry == "slowed":
+        return max(config.entry_clearance_m, standstill)
     stop = config.v_init_mps**2 / (2.0 * config.idm_comfort_decel_mps2)
-    return max(config.entry_clearance_m, stop + config.idm_min_gap_m + config.vehicle_length_m)
+    return max(config.entry_clearance_m, stop + standstill)
+
+
+def entry_speed(config: MiVeCCConfig, nearest_s: np.ndarray) -> np.ndarray:
+    """Entry speed per lane [m/s] under ``comparator_entry="slowed"``: the speed from which a
+    vehicle entering at ``s = 0`` stops at ``idm_comfort_decel`` a standstill gap behind the
+    lane's nearest vehicle (at ``nearest_s`` [m]; inf: none), at most ``v_init``:
+    ``min(v_init, sqrt(2 b (nearest_s - vehicle_length - idm_min_gap)))``."""
+    room = np.maximum(nearest_s - config.vehicle_length_m - config.idm_min_gap_m, 0.0)
+    return np.minimum(config.v_init_mps, np.sqrt(2.0 * config.idm_comfort_decel_mps2 * room))

@@ -306,20 +306,21 @@ def collision_pairs(
 
 @njit
 def _entry_plan(active, vehicle, env, lane, s_new, queued, clearance):  # pragma: no cover
-    """(go (B, n_lanes), rows: vehicles entering per env, free slots per env)."""
+    """(go (B, n_lanes), rows: vehicles entering per env, free slots per env, nearest
+    (B, n_lanes): the lowest position of a lane's vehicles, inf without one)."""
     bsz, n_lanes = queued.shape
     cap = active.size // bsz
     go = np.zeros((bsz, n_lanes), np.bool_)
-    blocked = np.zeros((bsz, n_lanes), np.bool_)
+    nearest = np.full((bsz, n_lanes), np.inf)
     counts = np.zeros((2, bsz), np.int64)
     n_new = counts[0]
     n_free = counts[1]
     for i in range(s_new.size):
-        if s_new[i] < clearance and active[vehicle[i]]:
-            blocked[env[i], lane[i]] = True
+        if active[vehicle[i]] and s_new[i] < nearest[env[i], lane[i]]:
+            nearest[env[i], lane[i]] = s_new[i]
     for b in range(bsz):
         for ln in range(n_lanes):
-            if queued[b, ln] > 0 and not blocked[b, ln]:
+            if queued[b, ln] > 0 and not nearest[b, ln] < clearance:
                 go[b, ln] = True
                 n_new[b] += 1
         # free slots, counted from the end (where they are) until there are enough
@@ -329,12 +330,12 @@ def _entry_plan(active, vehicle, env, lane, s_new, queued, clearance):  # pragma
             free += not active[k]
             k -= 1
         n_free[b] = free
-    return go, counts
+    return go, counts, nearest
 
 
 @njit
 def _place_entries(go, times, entered, now, active, lane, s, v, a, t_arrive, t_enter, vid,
-                   next_vid, v_init, a_init):  # pragma: no cover
+                   next_vid, v_lane, a_init):  # pragma: no cover
     """Put the head vehicle of every ``go`` lane into its environment's next free slot."""
     bsz = active.shape[0]
     n_lanes = go.shape[1]
@@ -350,7 +351,7 @@ def _place_entries(go, times, entered, now, active, lane, s, v, a, t_arrive, t_e
             active[b, k] = True
             lane[b, k] = ln
             s[b, k] = 0.0
-            v[b, k] = v_init
+            v[b, k] = v_lane[b, ln]
             a[b, k] = a_init
             t_arrive[b, k] = times[b, ln, entered[b, ln] % ring]  # the queue's head
             entered[b, ln] += 1
@@ -364,10 +365,11 @@ def entry_plan(
     active: NDArray[np.bool_], vehicle: NDArray[np.int64], env: NDArray[np.int64],
     lane: NDArray[np.int64], s_new: NDArray[np.float64], queued: NDArray[np.int64],
     clearance_m: float,
-) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64]] | None:
-    """(go, n_new, n_free): lanes whose queue head enters (queued and no vehicle of the lane
-    closer than ``clearance_m`` to its entry), entries per environment, and its free slots
-    counted up to n_new (``n_free < n_new``: not enough room, ``n_free`` is then exact).
+) -> tuple[NDArray[np.bool_], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]] | None:
+    """(go, n_new, n_free, nearest): lanes whose queue head enters (queued and no vehicle of
+    the lane closer than ``clearance_m`` to its entry), entries per environment, its free slots
+    counted up to n_new (``n_free < n_new``: not enough room, ``n_free`` is then exact), and
+    the position of each lane's nearest vehicle to its entry [m] (inf: none).
 
     The vehicles are read from the view of the step (``vehicle``, ``env``, ``lane``; ``s_new``
     their positions after the move): every active vehicle is in it (a vehicle outside the
@@ -375,23 +377,24 @@ def entry_plan(
     (B * capacity,), C order). None when numba is missing."""
     if not HAVE_NUMBA:
         return None
-    go, counts = _entry_plan(active, vehicle, env, lane, s_new, queued, float(clearance_m))
+    go, counts, nearest = _entry_plan(active, vehicle, env, lane, s_new, queued,
+                                      float(clearance_m))
     n_new, n_free = counts
-    return go, n_new, n_free
+    return go, n_new, n_free, nearest
 
 
 def place_entries(
     go: NDArray[np.bool_], ring: tuple[NDArray[np.float64], NDArray[np.int64]],
     now: NDArray[np.float64], state: tuple[NDArray, ...], next_vid: NDArray[np.int64],
-    v_init: float, a_init: float,
+    v_lane: NDArray[np.float64], a_init: float,
 ) -> None:
     """Fill the slots of the entering vehicles in place (the reference's slot order: the
     environment's free slots ascending, lanes ascending) and take them off their queues.
     ``ring``: the arrival process's (times, entered) arrays (the head of a queue is
     ``times[b, lane, entered % ring size]``; ``entered`` is advanced); ``state``: the
-    simulator's (active, lane, s, v, a, t_arrive, t_enter, vid) arrays; ``next_vid`` is
-    advanced."""
-    _place_entries(go, *ring, now, *state, next_vid, float(v_init), float(a_init))
+    simulator's (active, lane, s, v, a, t_arrive, t_enter, vid) arrays; ``v_lane``: the entry
+    speed of each lane (B, n_lanes) [m/s]; ``next_vid`` is advanced."""
+    _place_entries(go, *ring, now, *state, next_vid, v_lane, float(a_init))
 
 
 @njit
