@@ -65,6 +65,9 @@ DEFAULT_OUT = HERE / "results" / "batch_fuzz"
 #: Choice fields drawn by the preset (``model``) or separately; every other choice field of
 #: the config is drawn from its choices (half of the cases leave each at its default).
 NOT_DRAWN = ("model",)
+#: Choice fields added to the config after the committed digests were made: drawn last, from a
+#: generator of their own, so every other draw of a case (and its digest) stays as it was.
+LATE_CHOICES = ("comparator_entry",)
 #: Numeric fields, each drawn in 15 % of the cases from a moderate part of its range:
 #: (low, high, integer). Values that do not fit together are refused by the config.
 NUMERIC: dict[str, tuple[float, float, bool]] = {
@@ -105,7 +108,7 @@ RESETTABLE = ("unsignalized", "signalized")
 def choice_fields() -> dict[str, tuple[Any, ...]]:
     """Every choice field of the config and its choices (from the field metadata)."""
     return {f.name: f.metadata["choices"] for f in dataclasses.fields(MiVeCCConfig)
-            if "choices" in f.metadata and f.name not in NOT_DRAWN}
+            if "choices" in f.metadata and f.name not in (*NOT_DRAWN, *LATE_CHOICES)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,6 +139,11 @@ def draw_case(index: int) -> Case:
     period = int(kw.get("cloud_period", 1))
     kw["max_steps"] = max(period, int(rng.integers(40, 200)) // period * period)
     batch = int(rng.integers(2, 5))
+    late = np.random.default_rng([index, 0x6D697665, 1])
+    choices = {f.name: f.metadata.get("choices") for f in dataclasses.fields(MiVeCCConfig)}
+    for name in LATE_CHOICES:
+        if late.random() < 0.5:
+            kw[name] = choices[name][int(late.integers(len(choices[name])))]
     return Case(
         index=index,
         overrides=kw,

@@ -39,6 +39,20 @@ def test_cases_are_reproducible_and_cover_the_choice_fields() -> None:
     drawn = {name for i in range(40) for name in batch_fuzz.draw_case(i).overrides}
     assert set(batch_fuzz.choice_fields()) <= drawn
     assert {"scheme", "control", "safety_shield", "cloud_graphs", "sections"} <= drawn
+    assert set(batch_fuzz.LATE_CHOICES) <= drawn
+
+
+def test_fields_added_later_leave_every_other_draw_alone(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
+    """The committed digests stay comparable: without the late fields each case is drawn as
+    before they existed."""
+    with_late = [batch_fuzz.draw_case(i) for i in range(30)]
+    late = batch_fuzz.LATE_CHOICES
+    monkeypatch.setattr(batch_fuzz, "NOT_DRAWN", (*batch_fuzz.NOT_DRAWN, *late))
+    monkeypatch.setattr(batch_fuzz, "LATE_CHOICES", ())  # as if the config had no such field
+    for case, before in zip(with_late, map(batch_fuzz.draw_case, range(30)), strict=True):
+        assert dataclasses.replace(case, overrides={
+            k: v for k, v in case.overrides.items() if k not in late}) == before
 
 
 def test_a_difference_is_named() -> None:
