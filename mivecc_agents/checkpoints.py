@@ -35,11 +35,12 @@ the next :func:`save_checkpoint` or :func:`load_checkpoint` of that path.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -236,6 +237,30 @@ def read_checkpoint(path: str | os.PathLike, required: Sequence[str]) -> dict[st
             f"{ENV_VERSION!r}"
         )
     return data
+
+
+def read_policy_file(path: str | os.PathLike, kind: str, required: Sequence[str]
+                     ) -> dict[str, Any]:
+    """:func:`read_checkpoint` of a file that must hold the ``kind`` policy and the
+    ``required`` keys (``CheckpointError`` naming the kind it holds, or the missing keys)."""
+    data = read_checkpoint(path, ("kind",))
+    if data["kind"] != kind:
+        raise CheckpointError(f"{path}: holds the {data['kind']!r} policy, but a {kind!r} "
+                              "policy is needed")
+    require_keys(path, data, required)
+    return data
+
+
+@contextlib.contextmanager
+def corrupt_policy(path: str | os.PathLike, what: str) -> Iterator[None]:
+    """Turn a ``TypeError``, ``ValueError``, ``RuntimeError`` or ``KeyError`` raised while a
+    checkpoint's content is built into networks into a one-line ``CheckpointError``:
+    ``"<path>: corrupt <what>: <error type>: <its first line>"``."""
+    try:
+        yield
+    except (TypeError, ValueError, RuntimeError, KeyError) as exc:
+        raise CheckpointError(f"{path}: corrupt {what}: {type(exc).__name__}: "
+                              f"{_first_sentence(str(exc))}") from exc
 
 
 def load_checkpoint(path: str | os.PathLike, expected_kind: str | None = None) -> dict[str, Any]:

@@ -42,12 +42,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from mivecc_agents.checkpoints import (
-    CheckpointError,
-    read_checkpoint,
-    require_keys,
-    save_checkpoint,
-)
+from mivecc_agents.checkpoints import corrupt_policy, read_policy_file, save_checkpoint
 from mivecc_agents.coder_settings import MAX_INTERSECTIONS, CoderSettings, check_coder_grid
 from mivecc_agents.signal_dqn import (
     FIRST_TRAIN_SEED,
@@ -218,13 +213,10 @@ class CoderPolicy:
     def load(cls, path: str | Path) -> CoderPolicy:
         """Read a policy written by :meth:`save`; :class:`CheckpointError` (naming the file)
         for a missing, corrupt or foreign file."""
-        data = read_checkpoint(path, ("kind",))
-        if data["kind"] != CODER_KIND:
-            raise CheckpointError(f"{path}: holds the {data['kind']!r} policy, but a "
-                                  f"{CODER_KIND!r} policy is needed")
-        require_keys(path, data, ("decision_period_s", "hidden", "global_hidden", "settings",
-                                  "regional", "aggregation"))
-        try:
+        data = read_policy_file(path, CODER_KIND, ("decision_period_s", "hidden",
+                                                   "global_hidden", "settings", "regional",
+                                                   "aggregation"))
+        with corrupt_policy(path, "Coder policy"):
             hidden, global_hidden = int(data["hidden"]), int(data["global_hidden"])
             period = float(data["decision_period_s"])
             if hidden < 1 or global_hidden < 1 or not period > 0:
@@ -237,10 +229,6 @@ class CoderPolicy:
             aggregation.load_state_dict(data["aggregation"])
             settings = dict(data["settings"])
             check_coder_grid(int(settings["rows"]), int(settings["cols"]))
-        except (TypeError, ValueError, RuntimeError, KeyError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-            raise CheckpointError(f"{path}: corrupt Coder policy: {type(exc).__name__}: "
-                                  f"{first[:120]}") from exc
         return cls(regional, aggregation, period, settings, checkpoint=str(path))
 
 

@@ -40,12 +40,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from mivecc_agents.checkpoints import (
-    CheckpointError,
-    read_checkpoint,
-    require_keys,
-    save_checkpoint,
-)
+from mivecc_agents.checkpoints import corrupt_policy, read_policy_file, save_checkpoint
 from mivecc_agents.signal_dqn_settings import SignalDQNSettings, decision_steps
 from mivecc_env import signal_agents
 from mivecc_env.config import MiVeCCConfig
@@ -138,22 +133,15 @@ class SignalDQNPolicy:
     def load(cls, path: str | Path) -> SignalDQNPolicy:
         """Read a policy written by :meth:`save`; :class:`CheckpointError` (naming the file)
         for a missing, corrupt or foreign file."""
-        data = read_checkpoint(path, ("kind",))
-        if data["kind"] != SIGNAL_KIND:
-            raise CheckpointError(f"{path}: holds the {data['kind']!r} policy, but a "
-                                  f"{SIGNAL_KIND!r} policy is needed")
-        require_keys(path, data, ("decision_period_s", "hidden", "network", "settings"))
-        try:
+        data = read_policy_file(path, SIGNAL_KIND,
+                                ("decision_period_s", "hidden", "network", "settings"))
+        with corrupt_policy(path, "signal policy"):
             hidden = int(data["hidden"])
             period = float(data["decision_period_s"])
             if hidden < 1 or not period > 0:
                 raise ValueError(f"hidden {hidden}, decision period {period}")
             net = SignalQNetwork(torch.ones(signal_agents.OBS_DIM), hidden)
             net.load_state_dict(data["network"])
-        except (TypeError, ValueError, RuntimeError, KeyError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
-            raise CheckpointError(f"{path}: corrupt signal policy: {type(exc).__name__}: "
-                                  f"{first[:120]}") from exc
         return cls(net, period, dict(data["settings"]), checkpoint=str(path))
 
 
