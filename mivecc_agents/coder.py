@@ -14,7 +14,9 @@ module is this package's reading of that design, on the signal agents of
   ``Q(s, a) = sum_r w_r(s) Q_region(s_r, a_r)``: each region's value of its part of ``a``,
   weighted by the aggregation network (``w_r >= 0`` from the region's observation and the grid's
   mean observation; all 1 before the aggregation stage). The decision is the best of the ``2^n``
-  joint phases, searched exhaustively (hence at most :data:`MAX_INTERSECTIONS` intersections).
+  joint phases, searched exhaustively on grids of at most :data:`MAX_INTERSECTIONS`
+  intersections (training: always); on larger grids a trained policy decides by
+  :func:`coordinate_ascent` (a local optimum of the same Q).
 * **decision** every ``decision_period_s`` (10 s), held in between, as PA-DQN
   (:class:`mivecc_agents.signal_dqn.HeldPhases`).
 * **training**, two stages with TorchRL's double-DQN loss (:class:`~mivecc_agents.signal_dqn.
@@ -60,6 +62,7 @@ __all__ = [
     "CoderPolicy",
     "CoderSettings",
     "GlobalQ",
+    "coordinate_ascent",
     "grid_regions",
     "joint_phases",
     "shipped_policy_path",
@@ -86,8 +89,8 @@ def shipped_policy_path() -> Path:
 def grid_regions(rows: int, cols: int) -> np.ndarray:
     """``(n_regions, 4)`` intersection ids (row-major, ``r * cols + c``) of every 2x2 block of
     the grid, each block's ids in the order top-left, top-right, bottom-left, bottom-right
-    (rows counted from the grid's first row). ConfigError for a grid Coder cannot run on."""
-    check_coder_grid(rows, cols)
+    (rows counted from the grid's first row). ConfigError for a grid without a 2x2 block."""
+    check_coder_grid(rows, cols, exhaustive=False)
     return np.array([[r * cols + c, r * cols + c + 1, (r + 1) * cols + c, (r + 1) * cols + c + 1]
                      for r in range(rows - 1) for c in range(cols - 1)], dtype=np.int64)
 
@@ -127,36 +130,74 @@ class GlobalQ(nn.Module):
     without an aggregation network)."""
 
     def __init__(self, regional: SignalQNetwork, aggregation: AggregationNetwork | None,
-                 rows: int, cols: int) -> None:
+                 rows: int, cols: int, exhaustive: bool = True) -> None:
         super().__init__()
         self.regional = regional
         self.aggregation = aggregation
         self.n_int = rows * cols
+        check_coder_grid(rows, cols, exhaustive)
         self.regions = torch.from_numpy(grid_regions(rows, cols))
-        bits = joint_phases(self.n_int)[:, grid_regions(rows, cols)]  # (A, R, 4)
-        self.register_buffer("region_action", torch.from_numpy(joint_index(bits).T.copy()))
+        table = np.zeros((self.regions.shape[0], 0), np.int64)
+        if exhaustive:  # each region's part of every joint phase
+            table = joint_index(joint_phases(self.n_int)[:, grid_regions(rows, cols)]).T.copy()
+        self.register_buffer("region_action", torch.from_numpy(table))
 
-    def region_obs(self, obs: torch.Tensor) -> torch.Tensor:
-        """``(..., R, 60)`` each region's observations from ``(..., n * 15)``."""
+    def region_values(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each region's Q-values ``(..., R, 16)`` and weight ``(..., R, 1)`` (1 without an
+        aggregation network) for the grid's observations ``(..., n * 15)``."""
         per_int = obs.reshape(*obs.shape[:-1], self.n_int, signal_agents.OBS_DIM)
-        return per_int[..., self.regions, :].flatten(-2)
+        region_obs = per_int[..., self.regions, :].flatten(-2)  # (..., R, 60)
+        q_region = self.regional(region_obs)
+        if self.aggregation is None:
+            return q_region, torch.ones_like(q_region[..., :1])
+        grid_mean = per_int.mean(-2, keepdim=True).expand(*region_obs.shape[:-1], -1)
+        return q_region, self.aggregation(torch.cat([region_obs, grid_mean], dim=-1))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
-        region_obs = self.region_obs(obs)
-        q_region = self.regional(region_obs)  # (..., R, 16)
+        q_region, weights = self.region_values(obs)
         index = self.region_action.expand(*q_region.shape[:-1], -1)
-        q_joint = q_region.gather(-1, index)  # (..., R, A)
-        if self.aggregation is None:
-            return q_joint.sum(-2)
-        per_int = obs.reshape(*obs.shape[:-1], self.n_int, signal_agents.OBS_DIM)
-        grid_mean = per_int.mean(-2, keepdim=True).expand(*region_obs.shape[:-1], -1)
-        weights = self.aggregation(torch.cat([region_obs, grid_mean], dim=-1))  # (..., R, 1)
-        return (weights * q_joint).sum(-2)
+        return (weights * q_region.gather(-1, index)).sum(-2)  # (..., A)
+
+
+def coordinate_ascent(q_region: np.ndarray, weights: np.ndarray, regions: np.ndarray,
+                      n_int: int, max_sweeps: int = 50) -> np.ndarray:
+    """A joint phase ``(n_int,)`` of high global Q ``sum_r weights[r] q_region[r, a_r]``
+    without enumerating all 2^n (grids of more than :data:`MAX_INTERSECTIONS` intersections):
+    start from each intersection's weighted vote of its regions' best joint phases (ties:
+    phase 0), then sweep the intersections in order, flipping one whenever that raises the
+    global Q, until a sweep changes nothing (a local optimum: no single flip improves) or after
+    ``max_sweeps`` sweeps. Deterministic."""
+    n_regions = regions.shape[0]
+    rows = np.arange(n_regions)
+
+    def value(phases: np.ndarray) -> float:
+        return float((weights * q_region[rows, joint_index(phases[regions])]).sum())
+
+    best = q_region.argmax(1)
+    wants = ((best[:, None] >> np.arange(REGION_SIZE)) & 1) * 2 - 1  # (R, 4) in {-1, +1}
+    votes = np.zeros(n_int)
+    np.add.at(votes, regions.ravel(), (weights[:, None] * wants).ravel())
+    phases = (votes > 0).astype(np.int64)
+    current = value(phases)
+    for _ in range(max_sweeps):
+        changed = False
+        for i in range(n_int):  # intersections, at decision steps only
+            phases[i] ^= 1
+            flipped = value(phases)
+            if flipped > current:
+                current, changed = flipped, True
+            else:
+                phases[i] ^= 1
+        if not changed:
+            break
+    return phases
 
 
 class CoderPolicy:
     """A trained Coder policy: ``policy(obs)`` -> the phases ``(n,)`` of the best joint phase
-    for the grid's signal observations ``(n, 15)`` (ties: the lowest joint index).
+    for the grid's signal observations ``(n, 15)`` (ties: the lowest joint index); on grids of
+    more than :data:`MAX_INTERSECTIONS` intersections the joint phase of
+    :func:`coordinate_ascent`.
 
     Attributes:
         rows, cols: the grid it acts on (:meth:`for_grid` gives the policy on another grid).
@@ -178,12 +219,15 @@ class CoderPolicy:
         self.checkpoint = checkpoint
         self.rows = int(settings["rows"] if rows is None else rows)
         self.cols = int(settings["cols"] if cols is None else cols)
-        self._q = GlobalQ(self.regional, self.aggregation, self.rows, self.cols)
-        self._phases = joint_phases(self.rows * self.cols)
+        #: Whether decisions search all joint phases (else coordinate ascent: larger grids).
+        self.exhaustive = self.rows * self.cols <= MAX_INTERSECTIONS
+        self._q = GlobalQ(self.regional, self.aggregation, self.rows, self.cols,
+                          self.exhaustive)
+        self._phases = joint_phases(self.rows * self.cols) if self.exhaustive else None
 
     def for_grid(self, rows: int, cols: int) -> CoderPolicy:
-        """The same networks on a ``rows`` x ``cols`` grid (ConfigError if Coder cannot run
-        there)."""
+        """The same networks on a ``rows`` x ``cols`` grid (ConfigError without a 2x2
+        block)."""
         if (rows, cols) == (self.rows, self.cols):
             return self
         return CoderPolicy(self.regional, self.aggregation, self.decision_period_s,
@@ -196,6 +240,10 @@ class CoderPolicy:
             raise ValueError(f"obs: expected shape ({n_int}, {signal_agents.OBS_DIM}) for the "
                              f"{self.rows}x{self.cols} grid, got {arr.shape}")
         with torch.no_grad():
+            if not self.exhaustive:
+                q_region, weights = self._q.region_values(torch.from_numpy(arr.reshape(-1)))
+                return coordinate_ascent(q_region.numpy(), weights[:, 0].numpy(),
+                                         self._q.regions.numpy(), n_int)
             best = int(self._q(torch.from_numpy(arr.reshape(-1))).argmax())
         return self._phases[best].astype(np.int64)
 

@@ -14,16 +14,19 @@ from mivecc_env.config import ConfigError
 
 __all__ = ["MAX_INTERSECTIONS", "CoderSettings", "check_coder_grid"]
 
-#: Coder searches all 2^n joint phases of the grid: at most this many intersections.
+#: Coder searches all 2^n joint phases of a grid of at most this many intersections (training
+#: always; on larger grids a trained policy decides by coordinate ascent, :mod:`..coder`).
 MAX_INTERSECTIONS = 12
 
 
-def check_coder_grid(rows: int, cols: int) -> None:
+def check_coder_grid(rows: int, cols: int, exhaustive: bool = True) -> None:
     """ConfigError unless Coder can run on a ``rows`` x ``cols`` grid: both at least 2 (a
-    region is a 2x2 block) and at most :data:`MAX_INTERSECTIONS` intersections."""
-    if rows < 2 or cols < 2 or rows * cols > MAX_INTERSECTIONS:
-        raise ConfigError(f"rows, cols: Coder needs a grid of at least 2x2 and at most "
-                          f"{MAX_INTERSECTIONS} intersections, got {rows}x{cols}")
+    region is a 2x2 block) and, for the exhaustive search of training, at most
+    :data:`MAX_INTERSECTIONS` intersections."""
+    if rows < 2 or cols < 2 or (exhaustive and rows * cols > MAX_INTERSECTIONS):
+        bound = f" and at most {MAX_INTERSECTIONS} intersections" if exhaustive else ""
+        raise ConfigError(f"rows, cols: Coder needs a grid of at least 2x2{bound}, got "
+                          f"{rows}x{cols}")
 
 
 @dataclass(frozen=True)

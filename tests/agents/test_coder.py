@@ -17,6 +17,7 @@ from mivecc_agents.coder import (
     CoderPolicy,
     CoderSettings,
     GlobalQ,
+    coordinate_ascent,
     grid_regions,
     joint_index,
     joint_phases,
@@ -43,9 +44,10 @@ def test_regions_are_the_2x2_blocks_of_the_grid() -> None:
     np.testing.assert_array_equal(grid_regions(3, 3), [[0, 1, 3, 4], [1, 2, 4, 5],
                                                        [3, 4, 6, 7], [4, 5, 7, 8]])
     np.testing.assert_array_equal(grid_regions(2, 3), [[0, 1, 3, 4], [1, 2, 4, 5]])
-    for rows, cols in ((1, 1), (1, 4), (4, 1), (4, 4), (2, 7)):
-        with pytest.raises(ConfigError, match=rf"rows, cols: Coder needs a grid .* got "
-                                              rf"{rows}x{cols}"):
+    assert grid_regions(4, 4).shape == (9, 4)  # larger grids: coordinate ascent
+    for rows, cols in ((1, 1), (1, 4), (4, 1)):
+        with pytest.raises(ConfigError, match=rf"rows, cols: Coder needs a grid of at least "
+                                              rf"2x2, got {rows}x{cols}"):
             grid_regions(rows, cols)
 
 
@@ -100,11 +102,37 @@ def test_policy_takes_the_best_joint_phase(tiny_run) -> None:
         on_3x3(obs)
     with pytest.raises(ConfigError, match="Coder needs a grid"):
         policy.for_grid(1, 1)
+    on_4x4 = policy.for_grid(4, 4)
+    assert not on_4x4.exhaustive and on_4x4(np.zeros((16, 15), np.float32)).shape == (16,)
+
+
+def test_coordinate_ascent_reaches_a_local_optimum_of_the_global_q() -> None:
+    """On larger grids the decision is a joint phase no single flip improves; on 3x3, where
+    the exhaustive optimum is known, it is never above it and mostly equal."""
+    policy = CoderPolicy.load(shipped_policy_path())
+    rng = np.random.default_rng(4)
+    regions = grid_regions(3, 3)
+    equal = 0
+    for _ in range(40):
+        obs = torch.from_numpy(rng.uniform(0, 15, (9 * 15,)).astype(np.float32))
+        q = GlobalQ(policy.regional, policy.aggregation, 3, 3)
+        with torch.no_grad():
+            values = q(obs).numpy()
+            q_region, weights = (x.numpy() for x in q.region_values(obs))
+        phases = coordinate_ascent(q_region, weights[:, 0], regions, 9)
+        found = values[joint_index(phases)]
+        for i in range(9):  # no single flip improves
+            flipped = phases.copy()
+            flipped[i] ^= 1
+            assert values[joint_index(flipped)] <= found
+        assert found <= values.max()
+        equal += bool(found == values.max())
+    assert equal >= 30
 
 
 @pytest.mark.parametrize(("field", "value", "message"), [
     ("rows", 1, r"rows, cols: Coder needs a grid of at least 2x2 .* got 1x3"),
-    ("cols", 5, r"rows, cols: Coder needs .* at most 12 intersections, got 3x5"),
+    ("cols", 5, r"rows, cols: Coder needs .* at most 12 intersections, got 3x5"),  # training
     ("global_episodes", 0, r"global_episodes: must be an integer in \[1, 100000\], got 0"),
     ("global_hidden", 1.5, r"global_hidden: must be an integer"),
     ("global_eps_start", float("nan"), r"global_eps_start: must be a number in \[0.0, 1.0\]"),
