@@ -1244,3 +1244,15 @@ def test_session35_stacking_audits_on_other_seeds_and_lengths():
     assert (f"--model released ({span('edge_released_shield_6000')}, "
             f"{span('cloud_released_shield_6000')}) and --model paper "
             f"({span('edge_paper_shield_6000')}, {span('cloud_paper_shield_6000')})") in block
+
+
+def test_eec_vs_coder_is_the_committed_comparison() -> None:
+    """The paper's first row as the README quotes it: MiVeCC-EEC's velocity gain over Coder
+    per density, from the committed comparison runs (``benchmarks/comparison.py``)."""
+    import comparison
+
+    rows = list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
+                                      "comparison.csv"]).values())
+    gains = [comparison.gain(rows, (3, 3), d, "EEC", "coder") for d in DENSITIES]
+    quoted = ", ".join(f"{g:+.1f} %" for g in gains)
+    assert quoted in " ".join(RESULTS.split())
