@@ -308,8 +308,10 @@ def _scheme_table(title: str, cells: dict[tuple[int, str], str], schemes: Sequen
 
 
 def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[str],
-         densities: Sequence[int], path: Path) -> None:
-    """Velocity (seed sd as error bars) and collisions vs density, with the upper bound."""
+         densities: Sequence[int], path: Path, comparator_entry: str = "stop_clearance"
+         ) -> None:
+    """Velocity (seed sd as error bars), throughput and collisions vs density, with the upper
+    bound (a figure of runs with ``comparator_entry="slowed"`` says so above the panels)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -344,6 +346,9 @@ def plot(rows: list[dict[str, Any]], grid: tuple[int, int], schemes: Sequence[st
     ax_c.set_ylabel("collision events (sum over seeds)")
     ax_c.set_yscale("symlog")
     ax_c.set_title(f"{r}x{c}: collisions (strict: any two vehicles < 2 m)")
+    if comparator_entry != "stop_clearance":
+        fig.suptitle(f"comparators with comparator_entry={comparator_entry}: they enter at "
+                     "MiVeCC's clearance, slower into a short gap")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -435,7 +440,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               "`simulated` = run by that command or an earlier one whose CSV it reused).\n")
     (args.out / "comparison.md").write_text(header + "\n" + md + "\n", encoding="utf-8")
     for g in grids:
-        plot(rows, g, args.schemes, args.densities, args.out / f"comparison_{g[0]}x{g[1]}.png")
+        plot(rows, g, args.schemes, args.densities, args.out / f"comparison_{g[0]}x{g[1]}.png",
+             args.comparator_entry)
     print(md)
     return 0
 
