@@ -127,7 +127,8 @@ class AggregationNetwork(nn.Module):
 class GlobalQ(nn.Module):
     """Q-values ``(..., 2^n)`` of the joint phases of a grid from its signal observations
     flattened, ``(..., n * 15)`` (module docstring: ``sum_r w_r Q_region(s_r, a_r)``; ``w_r = 1``
-    without an aggregation network)."""
+    without an aggregation network). With ``exhaustive=False`` (grids too large to enumerate)
+    it holds no joint-phase table: use :meth:`region_values` and :func:`coordinate_ascent`."""
 
     def __init__(self, regional: SignalQNetwork, aggregation: AggregationNetwork | None,
                  rows: int, cols: int, exhaustive: bool = True) -> None:
@@ -136,10 +137,11 @@ class GlobalQ(nn.Module):
         self.aggregation = aggregation
         self.n_int = rows * cols
         check_coder_grid(rows, cols, exhaustive)
-        self.regions = torch.from_numpy(grid_regions(rows, cols))
-        table = np.zeros((self.regions.shape[0], 0), np.int64)
+        regions = grid_regions(rows, cols)
+        self.regions = torch.from_numpy(regions)
+        table = np.zeros((regions.shape[0], 0), np.int64)
         if exhaustive:  # each region's part of every joint phase
-            table = joint_index(joint_phases(self.n_int)[:, grid_regions(rows, cols)]).T.copy()
+            table = joint_index(joint_phases(self.n_int)[:, regions]).T.copy()
         self.register_buffer("region_action", torch.from_numpy(table))
 
     def region_values(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
