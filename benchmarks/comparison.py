@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from mivecc_agents.evaluation import COMPARATORS, LEARNED_SIGNAL_SCHEMES
 from mivecc_env import cli_args
 
 SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "pa-dqn", "coder",
@@ -68,10 +69,6 @@ TABLE_KEYS = ("grid", "density", "scheme", "runs", "seeds", "steps", "velocity_m
               "entered_share", "source")
 
 
-#: MiVeCC's schemes: ``comparator_entry`` does not change their runs.
-MIVECC_SCHEMES = ("E", "EE", "EEC")
-
-
 def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
     import os
 
@@ -84,13 +81,12 @@ def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
         from mivecc_agents.policies import pretrained_policies
 
         policies = pretrained_policies()
-    elif scheme in ("pa-dqn", "coder"):
+    elif scheme in LEARNED_SIGNAL_SCHEMES:
         from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
 
         policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
-    entry_kw = {} if scheme in MIVECC_SCHEMES else {"comparator_entry": entry}
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
-                          progress=False, warn=False, **entry_kw)
+                          progress=False, warn=False, comparator_entry=entry)
     out["source"] = "simulated"
     return out
 
@@ -132,7 +128,7 @@ def load_rows(paths: Sequence[Path], model: str = "paper",
                 if (row.get("model") or "paper") != model:
                     continue
                 entry = row.get("comparator_entry") or "stop_clearance"
-                if row["scheme"] not in MIVECC_SCHEMES and entry != comparator_entry:
+                if row["scheme"] in COMPARATORS and entry != comparator_entry:
                     continue
                 row["scheme"] = ALIASES.get(row["scheme"], row["scheme"])
                 if not row.get("source"):

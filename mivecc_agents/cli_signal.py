@@ -27,9 +27,10 @@ def signal_policies(args: argparse.Namespace) -> dict[str, Any]:
     (``pa-dqn`` or ``coder``) and grid (``--rows``, ``--cols``); a file that is missing, not a
     signal policy or the other learned scheme's is a :class:`ConfigError` naming the option."""
     from mivecc_agents.checkpoints import CheckpointError
+    from mivecc_agents.evaluation import LEARNED_SIGNAL_SCHEMES
     from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
 
-    learned = args.scheme in ("pa-dqn", "coder")
+    learned = args.scheme in LEARNED_SIGNAL_SCHEMES
     path, option = args.signal_checkpoint, "--signal-checkpoint"
     if path is None:
         if args.no_pretrained:

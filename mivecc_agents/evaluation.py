@@ -156,9 +156,9 @@ def _check_args(
         raise ConfigError(f"control: scheme {scheme!r} needs control='unsignalized', "
                           f"got {overrides['control']!r}")
     if scheme in LEARNED_SIGNAL_SCHEMES and (policies or {}).get("signal") is None:
-        module = "coder.CoderPolicy" if scheme == "coder" else "signal_dqn.SignalDQNPolicy"
         raise ConfigError(f"policies: scheme {scheme!r} needs policies['signal'], e.g. "
-                          f"mivecc_agents.{module}.load(...shipped_policy_path())")
+                          "mivecc_agents.signal_policy_files.load_signal_policy("
+                          f"shipped_signal_policy_path({scheme!r}, rows, cols))")
     if policies is not None:
         unknown = set(policies) - {"edge", "cloud", "signal"}
         if unknown:

@@ -136,6 +136,7 @@ class Simulator:
         self.step_count = 0
         self.start_step = np.zeros(b, dtype=np.int64)  # step_count at each env's last reset
         self.next_vid = np.zeros(b, dtype=np.int64)
+        self._v_init_lanes: FloatArray | None = None  # entry speeds at v_init (read-only)
         self.exited = np.zeros(b, dtype=np.int64)
         self.collided = np.zeros(b, dtype=np.int64)  # vehicles removed by collision
         self.collision_events = np.zeros(b, dtype=np.int64)
@@ -607,7 +608,9 @@ class Simulator:
         c = self.config
         if c.control != "unsignalized" and c.comparator_entry == "slowed":
             return signals.entry_speed(c, nearest)
-        return np.full(nearest.shape, c.v_init_mps)
+        if self._v_init_lanes is None or self._v_init_lanes.shape != nearest.shape:
+            self._v_init_lanes = np.full(nearest.shape, c.v_init_mps)
+        return self._v_init_lanes
 
     def _enter_vehicles(self, now_s: FloatArray, events: StepEvents, s_new: FloatArray) -> None:
         """Arrivals into the queues, queue heads into the network where the entry is clear.
