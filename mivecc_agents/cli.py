@@ -7,8 +7,9 @@ is added by writing those two and listing the first in :data:`COMMANDS`):
 * ``mivecc evaluate``: run a scheme (``E``, ``EE``, ``EEC`` or a comparator, e.g. ``max-pressure``)
   for some steps on one or more seeds and print the traffic metrics (a table, or JSON with
   ``--json``).
-* ``mivecc train`` / ``mivecc train-signal`` / ``mivecc train-coder``: train the coordinators
-  (two-stage DDPG) / the PA-DQN or Coder signal policy (:mod:`mivecc_agents.cli_signal`).
+* ``mivecc train`` / ``mivecc train-signal`` / ``mivecc train-coder`` / ``mivecc
+  train-comaddpg``: train the coordinators (two-stage DDPG) / the PA-DQN or Coder signal policy /
+  the CoMADDPG vehicle policy (:mod:`mivecc_agents.cli_signal`).
 
 Examples::
 
@@ -37,12 +38,16 @@ from typing import Any
 
 from mivecc_agents.cli_signal import (
     add_train_coder_parser,
+    add_train_comaddpg_parser,
     add_train_signal_parser,
+    comparator_policies,
     signal_policies,
+    vehicle_policies,
 )
 from mivecc_agents.evaluation import (
     LEARNED_SIGNAL_SCHEMES,
     SCHEMES,
+    VEHICLE_AGENT_SCHEMES,
     adopt_cloud_period,
     aggregate,
     evaluate_batch,
@@ -159,8 +164,8 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("--scheme", choices=SCHEMES, default="E",
                    help="E, EE, EEC, or a comparator: fixed-time (alias signalized), actuated, "
-                   "max-pressure, reservation, optimisation, pa-dqn, coder (learned signals; "
-                   "docs/comparators.md; default E)")
+                   "max-pressure, reservation, optimisation, pa-dqn, coder (learned signals), "
+                   "comaddpg (learned vehicle agents; docs/comparators.md; default E)")
     add_config_arguments(p)
     p.add_argument("--steps", type=int, default=3000, help="env steps of 0.1 s (default 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
@@ -178,9 +183,13 @@ def add_evaluate_parser(subparsers: Any) -> argparse.ArgumentParser:
     p.add_argument("--signal-checkpoint", type=Path, default=None,
                    help="schemes pa-dqn and coder: signal policy checkpoint (default: the "
                    "shipped one; mivecc train-signal / train-coder write one)")
+    p.add_argument("--vehicle-checkpoint", type=Path, default=None,
+                   help="scheme comaddpg: the vehicles' policy checkpoint (default: the shipped "
+                   "one; mivecc train-comaddpg writes one)")
     p.add_argument("--no-pretrained", action="store_true",
                    help="ignore the shipped checkpoints: EE/EEC act with zero coordinator "
-                   "actions (pa-dqn and coder then need --signal-checkpoint)")
+                   "actions (pa-dqn and coder then need --signal-checkpoint, comaddpg "
+                   "--vehicle-checkpoint)")
     p.add_argument("--threads", type=int, default=DEFAULT_EVAL_THREADS,
                    help="torch threads for the policies' inference (default "
                    f"{DEFAULT_EVAL_THREADS}: fastest for these small networks)")
@@ -295,7 +304,7 @@ def _loads_policies(args: argparse.Namespace) -> bool:
 def _check_checkpoint_files(args: argparse.Namespace) -> None:
     """A given checkpoint path that is no file is an error before anything is imported
     (loading it would import torch first, several seconds)."""
-    for kind in ("edge", "cloud", "signal"):
+    for kind in ("edge", "cloud", "signal", "vehicle"):
         path = getattr(args, f"{kind}_checkpoint")
         if path is not None and not Path(path).is_file():
             raise ConfigError(f"--{kind}-checkpoint: {path}: no such checkpoint file")
@@ -381,16 +390,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if _loads_policies(args):
             set_inference_threads(threads)
         policies = evaluation_policies(args, config, overrides)
-    elif args.scheme in LEARNED_SIGNAL_SCHEMES:
+    elif args.scheme in (*LEARNED_SIGNAL_SCHEMES, *VEHICLE_AGENT_SCHEMES):
         _check_unused_checkpoints(args)
         set_inference_threads(threads)
-        policies = signal_policies(args)
+        policies = comparator_policies(args)
     else:
         _check_unused_checkpoints(args)
-    if args.signal_checkpoint is not None and args.scheme not in LEARNED_SIGNAL_SCHEMES:
-        signal_policies(args)  # a given file must load, even when it is not used
-        print(f"{PROG}: warning: --signal-checkpoint: scheme {args.scheme} has no learned "
-              "signal agents: the policy is ignored", file=sys.stderr)
+    for kind, users, load in (("signal", LEARNED_SIGNAL_SCHEMES, signal_policies),
+                              ("vehicle", VEHICLE_AGENT_SCHEMES, vehicle_policies)):
+        if getattr(args, f"{kind}_checkpoint") is not None and args.scheme not in users:
+            load(args)  # a given file must load, even when it is not used
+            print(f"{PROG}: warning: --{kind}-checkpoint: scheme {args.scheme} has no "
+                  f"learned {kind} agents: the policy is ignored", file=sys.stderr)
     if len(seeds) == 1:
         results = [evaluate_scheme(args.scheme, args.rows, args.cols, args.density, args.steps,
                                    seeds[0], policies=policies, progress=not args.no_progress,
@@ -447,9 +458,9 @@ def _evaluate_share(job: tuple[argparse.Namespace, dict[str, Any], list[int], in
             set_inference_threads(args.threads)
             with contextlib.redirect_stderr(io.StringIO()):  # the parent has warned
                 policies = evaluation_policies(args, _evaluation_config(args, overrides))
-        elif args.scheme in LEARNED_SIGNAL_SCHEMES:
+        elif args.scheme in (*LEARNED_SIGNAL_SCHEMES, *VEHICLE_AGENT_SCHEMES):
             set_inference_threads(args.threads)
-            policies = signal_policies(args)
+            policies = comparator_policies(args)
     return evaluate_batch(args.scheme, args.rows, args.cols, args.density, args.steps, seeds,
                           policies=policies, progress=not (in_worker or args.no_progress),
                           warn=index == 0,
@@ -543,7 +554,8 @@ def _stage2_config(args: argparse.Namespace) -> MiVeCCConfig:
                                  "scheme": "EEC"})
 
 
-COMMANDS.extend([add_train_parser, add_train_signal_parser, add_train_coder_parser])
+COMMANDS.extend([add_train_parser, add_train_signal_parser, add_train_coder_parser,
+                 add_train_comaddpg_parser])
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,11 +1,14 @@
-"""The learned signal comparators' parts of the ``mivecc`` command line (PA-DQN and Coder).
+"""The learned comparators' parts of the ``mivecc`` command line (PA-DQN, Coder, CoMADDPG).
 
 * ``mivecc evaluate --scheme pa-dqn|coder [--signal-checkpoint FILE]``: :func:`signal_policies`
-  loads the signal policy (default: the shipped one).
+  loads the signal policy (default: the shipped one); ``--scheme comaddpg
+  [--vehicle-checkpoint FILE]``: :func:`vehicle_policies` the vehicles' policy.
 * ``mivecc train-signal --out DIR``: trains a PA-DQN policy (:mod:`mivecc_agents.signal_dqn`)
   and writes ``DIR/signal_dqn.pt``, ``DIR/train_log.csv`` and ``DIR/learning_curve.png``;
   ``mivecc train-coder --out DIR`` the same for Coder (:mod:`mivecc_agents.coder`,
-  ``DIR/coder.pt``). One progress line per episode on stderr, the checkpoint's path on stdout.
+  ``DIR/coder.pt``), ``mivecc train-comaddpg --out DIR`` for CoMADDPG
+  (:mod:`mivecc_agents.comaddpg`, ``DIR/comaddpg.pt``). One progress line per episode on
+  stderr, the checkpoint's path on stdout.
 """
 
 from __future__ import annotations
@@ -48,21 +51,58 @@ def signal_policies(args: argparse.Namespace) -> dict[str, Any]:
     return {"signal": policy}
 
 
-#: The training commands: name -> (settings class path, trainer path, checkpoint file, help).
+def vehicle_policies(args: argparse.Namespace) -> dict[str, Any]:
+    """``{"vehicle": policy}`` from ``--vehicle-checkpoint`` or the shipped CoMADDPG policy; a
+    file that is missing or not a CoMADDPG policy is a :class:`ConfigError` naming the
+    option."""
+    from mivecc_agents.checkpoints import CheckpointError
+    from mivecc_agents.comaddpg import SHIPPED_PATH, CoMADDPGPolicy
+
+    path, option = args.vehicle_checkpoint, "--vehicle-checkpoint"
+    if path is None:
+        if args.no_pretrained:
+            raise ConfigError(f"--no-pretrained: scheme {args.scheme} needs a vehicle policy; "
+                              "give --vehicle-checkpoint")
+        path, option = SHIPPED_PATH, "shipped vehicle policy"
+    try:
+        return {"vehicle": CoMADDPGPolicy.load(path)}
+    except CheckpointError as exc:
+        raise ConfigError(f"{option}: {exc}") from exc
+
+
+def comparator_policies(args: argparse.Namespace) -> dict[str, Any]:
+    """The learned comparator's policies of ``args.scheme`` (:func:`signal_policies` or
+    :func:`vehicle_policies`)."""
+    from mivecc_agents.evaluation import VEHICLE_AGENT_SCHEMES
+
+    return vehicle_policies(args) if args.scheme in VEHICLE_AGENT_SCHEMES else (
+        signal_policies(args))
+
+
+#: The training commands: name -> (settings class path, trainer path, checkpoint file, help,
+#: description, the module with the trainer's ``write_log``, ``plot_learning_curve`` and
+#: ``progress_line``).
 TRAIN_COMMANDS = {
     "train-signal": ("mivecc_agents.signal_dqn_settings:SignalDQNSettings",
                      "mivecc_agents.signal_dqn:train_signal_dqn", "signal_dqn.pt",
                      "train the PA-DQN signal policy (learned signal comparator)",
                      "Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
                      "decision_period_s) on the single intersection, or on a grid with "
-                     "--rows/--cols; docs/comparators.md."),
+                     "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn"),
     "train-coder": ("mivecc_agents.coder_settings:CoderSettings",
                     "mivecc_agents.coder:train_coder", "coder.pt",
                     "train the Coder signal policy (learned multi-intersection comparator)",
                     "Train Coder (regional DQN agents over 2x2 blocks, then the aggregation of "
                     "their values into the grid's Q-function; a decision every "
                     "decision_period_s) on 3x3, or another grid of 4-12 intersections with "
-                    "--rows/--cols; docs/comparators.md."),
+                    "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn"),
+    "train-comaddpg": ("mivecc_agents.comaddpg_settings:CoMADDPGSettings",
+                       "mivecc_agents.comaddpg:train_comaddpg", "comaddpg.pt",
+                       "train the CoMADDPG vehicle policy (learned unsignalized comparator)",
+                       "Train CoMADDPG (every vehicle in a control area an agent: one shared "
+                       "actor on its virtual-lane view, a centralised critic with its reference "
+                       "vehicles' actions, MADDPG) on the single intersection, or on a grid "
+                       "with --rows/--cols; docs/comparators.md.", "mivecc_agents.comaddpg"),
 }
 
 
@@ -83,10 +123,15 @@ def add_train_coder_parser(subparsers: Any) -> argparse.ArgumentParser:
     return _add_train_parser(subparsers, "train-coder")
 
 
+def add_train_comaddpg_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """The ``train-comaddpg`` subcommand (:func:`_add_train_parser`)."""
+    return _add_train_parser(subparsers, "train-comaddpg")
+
+
 def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
     """A training subcommand of :data:`TRAIN_COMMANDS`: every field of its settings class but
     ``config`` as an option (``--set KEY=VALUE`` for config fields)."""
-    settings_spec, _, checkpoint, help_text, description = TRAIN_COMMANDS[name]
+    settings_spec, _, checkpoint, help_text, description, _ = TRAIN_COMMANDS[name]
     p = subparsers.add_parser(name, help=help_text, description=description)
     p.add_argument("--out", type=Path, required=True,
                    help=f"folder for {checkpoint}, train_log.csv and learning_curve.png")
@@ -112,10 +157,13 @@ def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
 
 
 def cmd_train_signal(args: argparse.Namespace) -> int:
-    """Run ``mivecc train-signal`` or ``mivecc train-coder``."""
+    """Run a training command of :data:`TRAIN_COMMANDS` (``mivecc train-signal``, ...)."""
+    import importlib
+
     from mivecc_agents.cli import parse_set_items, set_inference_threads
 
-    settings_spec, trainer_spec, checkpoint, _, _ = TRAIN_COMMANDS[args.train_command]
+    settings_spec, trainer_spec, checkpoint, _, _, log_module = TRAIN_COMMANDS[
+        args.train_command]
     settings_cls = _attr(settings_spec)
     settings_kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(settings_cls)
                    if f.name not in ("config", "densities")}
@@ -126,20 +174,15 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out: {out} is a file; give a folder")
     set_inference_threads(args.threads)
-    from mivecc_agents.signal_dqn import plot_learning_curve, write_log
-
+    logs = importlib.import_module(log_module)
     total = settings.episodes + getattr(settings, "global_episodes", 0)
 
     def progress(row: dict[str, float]) -> None:
-        stage = f" (stage {row['stage']:.0f})" if "stage" in row else ""
-        print(f"episode {row['episode']:.0f}/{total}{stage}: reward/decision "
-              f"{row['reward_per_decision']:.3f}, throughput {row['throughput']:.1f} veh, "
-              f"backlog {row['backlog']:.1f} veh, epsilon {row['epsilon']:.2f}, loss "
-              f"{row['loss']:.4f}, {row['wall_s']:.0f} s", file=sys.stderr, flush=True)
+        print(logs.progress_line(row, total), file=sys.stderr, flush=True)
 
     policy, log = _attr(trainer_spec)(settings, on_episode=progress)
     path = policy.save(out / checkpoint)  # its settings say how it was trained
-    write_log(log, out / "train_log.csv")
-    plot_learning_curve(log, out / "learning_curve.png")
+    logs.write_log(log, out / "train_log.csv")
+    logs.plot_learning_curve(log, out / "learning_curve.png")
     print(path)
     return 0

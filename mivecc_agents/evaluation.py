@@ -46,11 +46,13 @@ from typing import Any
 
 import numpy as np
 
+from mivecc_agents.comaddpg_settings import vehicle_agent_fields
 from mivecc_env import mivecc_v0
 from mivecc_env.config import ConfigError, MiVeCCConfig
 from mivecc_env.no_data import mark_no_data
 from mivecc_env.parallel_env import CLOUD_AGENT
 from mivecc_env.sim.checks import check_positive_int
+from mivecc_env.vehicle_agents import observe_vehicles, vehicle_accelerations, vehicle_commands
 
 #: A coordinator policy: (obs_batch (n, K, K, 3), mask (n, K)) -> actions (n, K).
 Policy = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -65,12 +67,16 @@ COMPARATORS: dict[str, dict[str, str]] = {
     "optimisation": {"control": "optimisation"},
     "pa-dqn": {"control": "signalized"},
     "coder": {"control": "signalized"},
+    "comaddpg": vehicle_agent_fields(),
     "signalized": {"control": "signalized", "signal_controller": "fixed-time"},
 }
 #: Comparators whose signal agents act with a learned policy (``policies["signal"]``:
 #: :mod:`mivecc_agents.signal_dqn` for PA-DQN, :mod:`mivecc_agents.coder` for Coder), its choice
 #: held between decisions.
 LEARNED_SIGNAL_SCHEMES: tuple[str, ...] = ("pa-dqn", "coder")
+#: Comparators whose vehicles are agents acting with a learned policy (``policies["vehicle"]``:
+#: :mod:`mivecc_agents.comaddpg`), executed unmodified inside the control areas.
+VEHICLE_AGENT_SCHEMES: tuple[str, ...] = ("comaddpg",)
 
 #: Scheme names accepted by :func:`evaluate_scheme`: MiVeCC's and the comparators'.
 SCHEMES: tuple[str, ...] = ("E", "EE", "EEC", *COMPARATORS)
@@ -101,11 +107,12 @@ def scheme_overrides(scheme: str, config_overrides: dict[str, Any]) -> dict[str,
     """Config overrides that select ``scheme``: a MiVeCC scheme, or a comparator's control mode.
 
     Comparators (``fixed-time``, ``reservation``, ...) run with the rules-only scheme ``E`` and
-    their control fields from :data:`COMPARATORS`.
+    their control fields from :data:`COMPARATORS` (CoMADDPG's vehicles send their command as
+    the edge action: scheme ``EE``).
     """
     overrides = dict(config_overrides)
     if scheme in COMPARATORS:
-        overrides.update(scheme="E", **COMPARATORS[scheme])
+        overrides.update({"scheme": "E", **COMPARATORS[scheme]})
     else:
         overrides["scheme"] = scheme
     return overrides
@@ -159,15 +166,20 @@ def _check_args(
         raise ConfigError(f"policies: scheme {scheme!r} needs policies['signal'], e.g. "
                           "mivecc_agents.signal_policy_files.load_signal_policy("
                           f"shipped_signal_policy_path({scheme!r}, rows, cols))")
+    if scheme in VEHICLE_AGENT_SCHEMES and (policies or {}).get("vehicle") is None:
+        raise ConfigError(f"policies: scheme {scheme!r} needs policies['vehicle'], e.g. "
+                          "mivecc_agents.comaddpg.CoMADDPGPolicy.load("
+                          "mivecc_agents.comaddpg.SHIPPED_PATH)")
     if policies is not None:
-        unknown = set(policies) - {"edge", "cloud", "signal"}
+        unknown = set(policies) - {"edge", "cloud", "signal", "vehicle"}
         if unknown:
-            raise ConfigError(
-                f"policies: keys must be 'edge', 'cloud' and/or 'signal', got {sorted(unknown)}"
-            )
-        if "signal" in policies and scheme not in LEARNED_SIGNAL_SCHEMES:
-            raise ConfigError(f"policies: 'signal' is used by scheme(s) "
-                              f"{list(LEARNED_SIGNAL_SCHEMES)} only, not {scheme!r}")
+            raise ConfigError(f"policies: keys must be 'edge', 'cloud', 'signal' and/or "
+                              f"'vehicle', got {sorted(unknown)}")
+        for kind, users in (("signal", LEARNED_SIGNAL_SCHEMES),
+                            ("vehicle", VEHICLE_AGENT_SCHEMES)):
+            if kind in policies and scheme not in users:
+                raise ConfigError(f"policies: {kind!r} is used by scheme(s) {list(users)} "
+                                  f"only, not {scheme!r}")
         for kind, policy in policies.items():
             if policy is not None and not callable(policy):
                 raise ConfigError(f"policies: {kind!r} must be a callable (obs, mask) -> "
@@ -176,9 +188,16 @@ def _check_args(
         if signal is not None and not getattr(signal, "decision_period_s", 0) > 0:
             raise ConfigError("policies: 'signal' must have a decision_period_s > 0 [s] "
                               "(a SignalDQNPolicy or a CoderPolicy)")
-        if getattr(signal, "scheme", scheme) != scheme:
-            raise ConfigError(f"policies: 'signal' is a policy of scheme {signal.scheme!r}, "
-                              f"not of {scheme!r}")
+        for kind in ("signal", "vehicle"):
+            policy = policies.get(kind)
+            if getattr(policy, "scheme", scheme) != scheme:
+                raise ConfigError(f"policies: {kind!r} is a policy of scheme "
+                                  f"{policy.scheme!r}, not of {scheme!r}")
+        vehicle = policies.get("vehicle")
+        if vehicle is not None and not (isinstance(getattr(vehicle, "k", None), int)
+                                        and vehicle.k >= 2):
+            raise ConfigError("policies: 'vehicle' must have an integer k >= 2 (the rows of "
+                              "its observations; a CoMADDPGPolicy)")
 
 
 def _coordinator_actions(
@@ -330,6 +349,14 @@ def evaluate_scheme(
         ConfigError: a bad scheme, step count, seed or config value (the message names it).
     """
     _check_args(scheme, steps, seed, policies, config_overrides)
+    if scheme in VEHICLE_AGENT_SCHEMES:  # the batched env steps vehicle agents
+        if step_hook is not None:
+            raise ConfigError(f"step_hook: not available for scheme {scheme!r}; use "
+                              "evaluate_batch(on_step=...)")
+        result = evaluate_batch(scheme, rows, cols, density, steps, [seed], policies=policies,
+                                progress=progress, warn=warn, **config_overrides)[0]
+        del result["batch_size"]
+        return result
     policies = dict(policies or {})
     overrides = scheme_overrides(scheme, config_overrides)
     adopt_cloud_period(policies, overrides, overrides["scheme"])
@@ -460,8 +487,8 @@ def evaluate_batch(
     overrides = scheme_overrides(scheme, config_overrides)
     adopt_cloud_period(policies, overrides, overrides["scheme"])
     pairs = [(d, int(s)) for d in dens for s in seeds]
-    needed_scheme = overrides["scheme"]
-    needed = _needed_policies(needed_scheme)
+    vehicle_policy = policies["vehicle"] if scheme in VEHICLE_AGENT_SCHEMES else None
+    needed = () if vehicle_policy is not None else _needed_policies(overrides["scheme"])
     env = BatchedMiVeCCEnv(
         batch_size=len(pairs), densities=[d for d, _ in pairs], observe=set(needed),
         rows=rows, cols=cols, density=dens[0], max_steps=int(steps),
@@ -470,7 +497,7 @@ def evaluate_batch(
     cfg = env.config
     coordinator_actions = _coordinator_actions(scheme, needed, policies, warn)
     held = _held_phases(scheme, policies, cfg)
-    if held is not None:
+    if held is not None or vehicle_policy is not None:
         coordinator_actions = "policy"
     a_max = cfg.a_max_mps2
     b = len(pairs)
@@ -488,6 +515,15 @@ def evaluate_batch(
     t0 = time.perf_counter()
     for i in range(int(steps)):
         edge = cloud = None
+        if vehicle_policy is not None:  # the vehicles in the control areas are the agents
+            agents = observe_vehicles(env.sim, vehicle_policy.k)
+            accel = vehicle_accelerations(vehicle_policy, agents, b, a_max)
+            before, step = step, env.step_vehicles(vehicle_commands(agents, accel, b))
+            if on_step is not None:
+                on_step(before, None, None, step)
+            if bar is not None and (i + 1) % chunk == 0:
+                bar.update(chunk)
+            continue
         if "edge" in needed:
             edge = batch_actions(edge_policy, step.edge_obs, step.edge_mask, a_max,
                                  edge_stacked)

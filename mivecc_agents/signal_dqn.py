@@ -349,6 +349,15 @@ def run_episodes(settings: SignalDQNSettings, env: Any,
     return log
 
 
+def progress_line(row: dict[str, float], total: int) -> str:
+    """One episode's progress line of ``mivecc train-signal`` / ``train-coder``."""
+    stage = f" (stage {row['stage']:.0f})" if "stage" in row else ""
+    return (f"episode {row['episode']:.0f}/{total}{stage}: reward/decision "
+            f"{row['reward_per_decision']:.3f}, throughput {row['throughput']:.1f} veh, "
+            f"backlog {row['backlog']:.1f} veh, epsilon {row['epsilon']:.2f}, loss "
+            f"{row['loss']:.4f}, {row['wall_s']:.0f} s")
+
+
 def write_log(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
     """The training log as CSV (one row per episode)."""
     path = Path(path)

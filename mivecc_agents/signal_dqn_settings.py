@@ -15,7 +15,7 @@ import numpy as np
 
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 
-__all__ = ["SignalDQNSettings", "decision_steps"]
+__all__ = ["SignalDQNSettings", "check_densities", "check_numbers", "decision_steps"]
 
 
 def _opt(default: Any, help_text: str) -> Any:
@@ -62,28 +62,12 @@ class SignalDQNSettings:
                 "rows": (1, 20), "cols": (1, 20), "hidden": (1, 4096),
                 "buffer": (1, 10**8), "minibatch": (1, 65_536), "warmup": (1, 10**8),
                 "updates_per_decision": (0, 1000), "seed": (0, 2**31)}
-        for name, (lo, hi) in ints.items():
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | np.integer) or not (
-                    lo <= value <= hi):
-                raise ConfigError(f"{name}: must be an integer in [{lo}, {hi}], got {value!r}")
         floats = {"decision_period_s": (0.0, 600.0, True), "reward_scale": (0.0, 1e6, True),
                   "gamma": (0.0, 1.0, False), "lr": (0.0, 1.0, True), "tau": (0.0, 1.0, True),
                   "eps_start": (0.0, 1.0, False), "eps_end": (0.0, 1.0, False),
                   "eps_decay_fraction": (0.0, 1.0, True)}
-        for name, (lo, hi, lo_open) in floats.items():
-            value = getattr(self, name)
-            ok = isinstance(value, int | float | np.number) and not isinstance(value, bool)
-            ok = ok and math.isfinite(value) and (lo < value if lo_open else lo <= value)
-            if not (ok and value <= hi):
-                bracket = "(" if lo_open else "["
-                raise ConfigError(f"{name}: must be a number in {bracket}{lo}, {hi}], "
-                                  f"got {value!r}")
-        if not self.densities or not all(
-                isinstance(d, int | float) and not isinstance(d, bool) and 0 < d <= 10_000
-                for d in self.densities):
-            raise ConfigError("densities: must be one or more numbers in (0, 10000] "
-                              f"[veh/lane/h], got {self.densities!r}")
+        check_numbers(self, ints, floats)
+        check_densities(self.densities)
         self.env_config()  # the config fields, the grid and the decision period
         return self
 
@@ -117,3 +101,36 @@ def decision_steps(period_s: float, dt_s: float) -> int:
         raise ConfigError(f"decision_period_s: must be a whole number >= 1 of steps of "
                           f"{dt_s} s, got {period_s!r}")
     return steps
+
+
+def check_numbers(settings: Any, ints: dict[str, tuple[int, int]],
+                  floats: dict[str, tuple[float, float, bool]]) -> None:
+    """:class:`ConfigError` naming the first field of ``settings`` out of its range.
+
+    Args:
+        ints: field -> (lo, hi): an integer in ``[lo, hi]``.
+        floats: field -> (lo, hi, lo_open): a finite number in ``[lo, hi]`` (``(lo, hi]`` if
+            ``lo_open``).
+    """
+    for name, (lo, hi) in ints.items():
+        value = getattr(settings, name)
+        if isinstance(value, bool) or not isinstance(value, int | np.integer) or not (
+                lo <= value <= hi):
+            raise ConfigError(f"{name}: must be an integer in [{lo}, {hi}], got {value!r}")
+    for name, (lo, hi, lo_open) in floats.items():
+        value = getattr(settings, name)
+        ok = isinstance(value, int | float | np.number) and not isinstance(value, bool)
+        ok = ok and math.isfinite(value) and (lo < value if lo_open else lo <= value)
+        if not (ok and value <= hi):
+            bracket = "(" if lo_open else "["
+            raise ConfigError(f"{name}: must be a number in {bracket}{lo}, {hi}], "
+                              f"got {value!r}")
+
+
+def check_densities(densities: Any) -> None:
+    """:class:`ConfigError` unless ``densities`` is one or more demands in (0, 10000]."""
+    if not densities or not all(
+            isinstance(d, int | float) and not isinstance(d, bool) and 0 < d <= 10_000
+            for d in densities):
+        raise ConfigError("densities: must be one or more numbers in (0, 10000] "
+                          f"[veh/lane/h], got {densities!r}")

@@ -364,6 +364,37 @@ class BatchedMiVeCCEnv:
             raw = np.broadcast_to(raw, (self.batch_size,))
         return self.step_commands(edge, cloud, signal, raw)
 
+    def step_vehicles(self, accel: ArrayLike) -> BatchStep:
+        """Advance every environment one step with an acceleration per vehicle slot, executed
+        unmodified (CoMADDPG's vehicle agents: :mod:`mivecc_env.vehicle_agents`).
+
+        Args:
+            accel: (B, capacity) acceleration [m/s^2] of each vehicle slot
+                (``vehicle_agents.vehicle_commands``), NaN where the end-node rules decide.
+                Only the velocity bounds apply to the others (no rule, no veto).
+
+        Raises:
+            RuntimeError: ``reset`` has not been called.
+            ValueError: not scheme ``EE`` / ``EEC`` under unsignalized control (the command
+                travels as the edge action), the wrong shape, +-inf, or a value outside
+                ``[-a_max, a_max]``.
+        """
+        c = self.config
+        if c.scheme == "E" or c.control != "unsignalized" or c.safety_shield:
+            raise ValueError("step_vehicles: needs scheme 'EE' or 'EEC', control='unsignalized' "
+                             f"and no safety_shield, got scheme={c.scheme!r}, "
+                             f"control={c.control!r}, safety_shield={c.safety_shield!r}")
+        if not self._started:
+            raise RuntimeError("step: call reset() first")
+        sim = self.sim
+        cmd = checks.check_accel("accel", accel, sim.active.shape)
+        if np.any(np.abs(cmd) > self._a_limit):  # NaN compares False
+            raise ValueError(f"accel: must be within [-{c.a_max_mps2}, {c.a_max_mps2}] m/s^2 "
+                             "(or NaN: the rules decide)")
+        events = sim.step(cmd.astype(np.float64, copy=False), None,
+                          raw_edge=np.ones(self.batch_size, dtype=bool))
+        return self._observe_and_pack(events)
+
     # ------------------------------------------------------------------------------------
     # for adapters
     def step_commands(

@@ -73,6 +73,8 @@ class StepEvents:
     #: (k,) environment and intersection (control area, -1 outside) of each collided vehicle.
     collided_env: IntArray
     collided_area: IntArray
+    #: (k,) flat slot (``env * capacity + slot``) of each collided vehicle (same order).
+    collided_slot: IntArray
 
 
 class Simulator:
@@ -217,7 +219,8 @@ class Simulator:
     def _no_events(self) -> StepEvents:
         zero = np.zeros(self.batch_size, dtype=np.int64)
         empty = np.zeros(0, dtype=np.int64)
-        return StepEvents(zero, zero.copy(), zero.copy(), zero.copy(), empty, empty.copy())
+        return StepEvents(zero, zero.copy(), zero.copy(), zero.copy(), empty, empty.copy(),
+                          empty.copy())
 
     @property
     def time_s(self) -> float:
@@ -599,6 +602,7 @@ class Simulator:
         events.collided_area = sections.control_area(
             self.network, self.config, view.lane[hit], s_new[hit]
         )
+        events.collided_slot = view.vehicle[hit]
         self.active.ravel()[view.vehicle[hit]] = False
 
     def _entry_speeds(self, nearest: FloatArray) -> FloatArray:

@@ -257,32 +257,56 @@ def build_graphs(
     cells[head_cell, 0] = _unit_clip(to_stop * inv_scale)
     cells[head_cell, 1:] = va[decision]
 
-    # Reference candidates: up to K-1 points on either side on the sorted virtual lane, in
-    # point order, clipped to the lane's run (a window as wide as the widest row needs, not
-    # 2 (K-1) wide); the decision's own point is not a candidate.
-    p = view.own_point[decision]
-    lo = np.maximum(view.point_run_start[p], p - (k - 1))
-    hi = np.minimum(view.point_run_end[p], p + k)  # exclusive
-    width = int((hi - lo).max())
-    cand = lo[:, None] + np.arange(width)
-    valid = (cand < hi[:, None]) & (cand != p[:, None])
-    np.minimum(cand, view.point_pos.size - 1, out=cand)
-    pos = view.point_pos[cand]
-    if area_centre_s is not None:
-        valid &= np.abs(pos - area_centre_s[:, None]) <= area_radius_m
-    rel = pos - s_d[:, None]
-    nearest = reference_order(cand, p, valid, np.abs(rel))[:, : k - 1]
-    n_ref = nearest.shape[1]
-    pick = nearest + (np.arange(decision.size) * width)[:, None]  # flat index into (D, width)
-    real = valid.ravel()[pick]
-    ref_vehicle = np.where(real, view.point_vehicle[cand.ravel()[pick]], n_veh)
+    ref, rel = nearest_references(view, decision, k - 1, area_centre_s, area_radius_m)
+    n_ref = ref.shape[1]
+    real = ref >= 0
+    ref_vehicle = np.where(real, ref, n_veh)
     block = np.empty((decision.size, n_ref, 3), dtype=np.float32)
-    block[..., 0] = np.where(real, _unit_clip(rel.ravel()[pick] * inv_scale), 0.0)
+    block[..., 0] = np.where(real, _unit_clip(rel * inv_scale), 0.0)
     block[..., 1:] = va[ref_vehicle]
     ref_cell = head_cell[:, None] + np.arange(1, n_ref + 1) * k
     cells[ref_cell] = block
 
     return _finish_masks(finish(), node, column, view, decision)
+
+
+def nearest_references(
+    view: VirtualLaneView, decision: IntArray, n_ref: int,
+    area_centre_s: FloatArray | None = None, area_radius_m: float = np.inf,
+) -> tuple[IntArray, FloatArray]:
+    """The ``n_ref`` nearest reference vehicles of each decision on its virtual lane.
+
+    The graphs' rule (:func:`build_graphs`, :func:`reference_order`): candidates are up to
+    ``n_ref`` points on either side of the decision's own point on the sorted virtual lane,
+    clipped to the lane's run (the decision's own point is not one), and, with
+    ``area_centre_s``, only those within ``area_radius_m`` of that centre on the lane.
+
+    Args:
+        decision: (D,) view index of each decision vehicle.
+        area_centre_s: (D,) centre of each decision's area on its lane [m], or None.
+
+    Returns:
+        (D, m) view index of each reference, nearest first, -1 where fewer exist, and
+        (D, m) its position minus the decision's on the virtual lane [m] (0 there), with
+        ``m = min(n_ref, the widest candidate window)``.
+    """
+    s_d = view.s[decision]
+    p = view.own_point[decision]
+    lo = np.maximum(view.point_run_start[p], p - n_ref)
+    hi = np.minimum(view.point_run_end[p], p + n_ref + 1)  # exclusive
+    width = int((hi - lo).max()) if decision.size else 0
+    cand = lo[:, None] + np.arange(width)
+    valid = (cand < hi[:, None]) & (cand != p[:, None])
+    np.minimum(cand, max(view.point_pos.size - 1, 0), out=cand)
+    pos = view.point_pos[cand]
+    if area_centre_s is not None:
+        valid &= np.abs(pos - area_centre_s[:, None]) <= area_radius_m
+    rel = pos - s_d[:, None]
+    nearest = reference_order(cand, p, valid, np.abs(rel))[:, :n_ref]
+    pick = nearest + (np.arange(decision.size) * width)[:, None]  # flat index into (D, width)
+    real = valid.ravel()[pick]
+    ref = np.where(real, view.point_vehicle[cand.ravel()[pick]], -1)
+    return ref, np.where(real, rel.ravel()[pick], 0.0)
 
 
 def reference_order(cand: IntArray, point: IntArray, valid: NDArray[np.bool_],

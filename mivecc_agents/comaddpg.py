@@ -1,0 +1,417 @@
+"""CoMADDPG: vehicles as MADDPG agents on their virtual lanes, the paper's learned comparator.
+
+The paper compares MiVeCC on the single intersection with CoMADDPG (Wu, Jiang and Zhang,
+Mathematical Problems in Engineering 2020), "a distributed RL scheme" that "attempts to obtain
+better policy than the proposed scheme, but collisions occur when the density exceeds 1500
+vehicles/lane/hour". No implementation is public; its abstract gives the design this module
+follows (the rest is this package's reading, ``docs/comparators.md``):
+
+* **agents**: every vehicle inside an intersection's control area (a dynamic number); outside
+  them vehicles follow the end-node rules (:mod:`mivecc_env.vehicle_agents`).
+* **observation** ("each vehicle selects reference vehicles to construct a partial stationary
+  environment ... projects the reference vehicles on a virtual lane"): the vehicle and its
+  ``k - 1`` nearest reference vehicles on its virtual lane, position, velocity and acceleration
+  (one column of an edge state graph, ``(k, 3)``).
+* **action**: the vehicle's acceleration in ``[-a_max, a_max]``, executed unmodified (no rule, no
+  veto: ``BatchedMiVeCCEnv.step_vehicles``).
+* **learning** (MADDPG "redefined to adapt to the dynamic quantity of agents"): one actor shared
+  by all vehicles; a centralised critic per vehicle that sees its observation, its action and
+  the actions of its reference vehicles (the agents of its partial environment), with MADDPG's
+  actor update (the other agents' actions from the replay buffer). TorchRL's ``DDPGLoss`` with
+  the reference vehicles' actions as extra critic inputs: at the next state they are the target
+  actor's actions for the next state's references, computed when the transition is stored.
+* **reward** per vehicle and step: ``(v' - v_max) / (v_max - v_floor)`` (travel-time cost, 0
+  at full speed) ``+ safety_weight * min(SV', 0) / 20`` (SV' the vehicle's safety value after the
+  step) ``- collision_penalty`` if it collided; a vehicle's transitions end (terminal) when it
+  leaves the control area, exits or collides.
+* **training**: ``batch`` environments with the densities cycled over them, episodes from an
+  empty network on fresh seeds (never the evaluation seeds 0-2), Gaussian exploration noise on
+  each vehicle's acceleration, held for ``noise_hold_steps`` steps (a braking or a push long
+  enough to change whether two vehicles meet at a conflict point: with noise drawn anew every
+  0.1 s, a DDPG actor settled at +3 m/s^2 everywhere in a pilot) and decaying linearly, one
+  update per step of the batch after the warm-up.
+
+A trained policy is :class:`CoMADDPGPolicy`; ``mivecc evaluate --scheme comaddpg`` runs the
+shipped one (:data:`SHIPPED_PATH`, trained on the single intersection), ``mivecc
+train-comaddpg`` trains one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from mivecc_agents.checkpoints import corrupt_policy, read_policy_file, save_checkpoint
+from mivecc_agents.comaddpg_settings import CoMADDPGSettings
+from mivecc_agents.signal_dqn import FIRST_TRAIN_SEED, SHIPPED_DIR, write_log
+from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim.core import StepEvents
+from mivecc_env.vehicle_agents import VehicleAgents, observe_vehicles, vehicle_commands
+
+__all__ = ["SHIPPED_PATH", "CoMADDPGPolicy", "CoMADDPGSettings", "VehicleActor",
+           "VehicleCritic", "progress_line", "train_comaddpg", "write_log"]
+
+#: ``kind`` of a CoMADDPG checkpoint.
+VEHICLE_KIND = "comaddpg"
+#: The shipped policy (in the package), trained on the single intersection.
+SHIPPED_PATH = SHIPPED_DIR / "comaddpg_1x1.pt"
+
+
+def vehicle_features(observation: torch.Tensor) -> torch.Tensor:
+    """``(..., 3 k)`` network input of observations ``(..., k, 3)``: the position channel as
+    ``sign(x) sqrt(|x|)`` (positions are scaled by the 150 m of a control area, so a 10 m gap
+    is 0.07; the root spreads the short distances that decide a conflict: 0.26), the
+    velocity and acceleration channels as they are."""
+    pos = observation[..., :1]
+    return torch.cat([torch.sign(pos) * torch.sqrt(pos.abs()), observation[..., 1:]],
+                     dim=-1).flatten(-2)
+
+
+class VehicleActor(nn.Module):
+    """Acceleration ``(..., 1)`` [m/s^2] of observations ``(..., k, 3)``: an MLP with two hidden
+    ReLU layers over :func:`vehicle_features` and a tanh scaled to ``a_max``."""
+
+    def __init__(self, k: int, hidden: int, a_max: float) -> None:
+        super().__init__()
+        self.k, self.a_max = int(k), float(a_max)
+        self.net = nn.Sequential(nn.Linear(3 * k, hidden), nn.ReLU(),
+                                 nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1),
+                                 nn.Tanh())
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return self.net(vehicle_features(observation)) * self.a_max
+
+
+class VehicleCritic(nn.Module):
+    """Q-value ``(..., 1)`` of a vehicle's observation ``(..., k, 3)``, its action ``(..., 1)``
+    and its references' actions and mask ``(..., k - 1)`` (padding rows: action 0, mask 0)."""
+
+    def __init__(self, k: int, hidden: int, a_max: float) -> None:
+        super().__init__()
+        self.a_scale = 1.0 / float(a_max)
+        self.net = nn.Sequential(nn.Linear(3 * k + 1 + 2 * (k - 1), hidden), nn.ReLU(),
+                                 nn.Linear(hidden, hidden // 2), nn.ReLU(),
+                                 nn.Linear(hidden // 2, 1))
+
+    def forward(self, observation: torch.Tensor, action: torch.Tensor,
+                neighbour_action: torch.Tensor, neighbour_mask: torch.Tensor) -> torch.Tensor:
+        x = torch.cat([vehicle_features(observation), action * self.a_scale,
+                       neighbour_action * self.a_scale, neighbour_mask], dim=-1)
+        return self.net(x)
+
+
+class CoMADDPGPolicy:
+    """A trained CoMADDPG actor: ``policy(obs)`` -> each vehicle's acceleration.
+
+    Attributes:
+        scheme: the evaluation scheme it is for (``"comaddpg"``).
+        actor: the actor network.
+        k: rows of an observation (the vehicle and its ``k - 1`` references).
+        settings: the training settings (a dict).
+        checkpoint: the file it was loaded from ("" if trained in this process).
+    """
+
+    scheme = "comaddpg"
+
+    def __init__(self, actor: VehicleActor, settings: dict[str, Any],
+                 checkpoint: str = "") -> None:
+        self.actor = actor.eval()
+        self.k = actor.k
+        self.settings = settings
+        self.checkpoint = checkpoint
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """(n,) float64 accelerations [m/s^2] of observations ``(n, k, 3)``."""
+        arr = np.asarray(obs, dtype=np.float32)
+        if arr.ndim != 3 or arr.shape[1:] != (self.k, 3):
+            raise ValueError(f"obs: expected shape (n, {self.k}, 3), got {arr.shape}")
+        with torch.no_grad():
+            return self.actor(torch.from_numpy(arr))[:, 0].numpy().astype(np.float64)
+
+    def save(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
+        """Write the policy as a mivecc checkpoint (``kind="comaddpg"``)."""
+        hidden = self.actor.net[0].out_features
+        return save_checkpoint(path, {
+            "kind": VEHICLE_KIND, "k": self.k, "hidden": hidden, "a_max": self.actor.a_max,
+            "settings": self.settings, "network": self.actor.state_dict(),
+            "extra": extra or {},
+        })
+
+    @classmethod
+    def load(cls, path: str | Path) -> CoMADDPGPolicy:
+        """Read a policy written by :meth:`save`; :class:`CheckpointError` (naming the file)
+        for a missing, corrupt or foreign file."""
+        data = read_policy_file(path, VEHICLE_KIND, ("k", "hidden", "a_max", "network",
+                                                      "settings"))
+        with corrupt_policy(path, "CoMADDPG policy"):
+            k, hidden, a_max = int(data["k"]), int(data["hidden"]), float(data["a_max"])
+            if k < 2 or hidden < 1 or not a_max > 0:
+                raise ValueError(f"k {k}, hidden {hidden}, a_max {a_max}")
+            actor = VehicleActor(k, hidden, a_max)
+            actor.load_state_dict(data["network"])
+        return cls(actor, dict(data["settings"]), checkpoint=str(path))
+
+
+@dataclass(frozen=True)
+class _Batch:
+    """Transitions of one step, as the replay buffer stores them."""
+
+    obs: np.ndarray
+    action: np.ndarray
+    neighbour_action: np.ndarray
+    neighbour_mask: np.ndarray
+    reward: np.ndarray
+    next_obs: np.ndarray
+    next_neighbour_action: np.ndarray
+    next_neighbour_mask: np.ndarray
+    terminated: np.ndarray
+
+
+def neighbour_actions(agents: VehicleAgents, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n, k-1) actions of each agent's reference rows (0 for padding) and their mask."""
+    mask = agents.ref_agent >= 0
+    padded = np.append(action, 0.0)  # index -1 reads the 0
+    return padded[agents.ref_agent].astype(np.float32), mask.astype(np.float32)
+
+
+def transitions(agents: VehicleAgents, action: np.ndarray, nxt: VehicleAgents,
+                next_target_action: np.ndarray, events: StepEvents, cfg: MiVeCCConfig,
+                settings: CoMADDPGSettings) -> _Batch:
+    """The transitions of the step from ``agents`` (actions ``action``) to ``nxt``.
+
+    An agent goes on where the same vehicle (environment, id) is an agent again; else its
+    transition is terminal (it left the control area, exited or collided). Reward: module
+    docstring.
+    """
+    n, k = len(agents), agents.obs.shape[1]
+    key = agents.env * (1 << 32) + agents.vid
+    next_key = nxt.env * (1 << 32) + nxt.vid
+    found, j = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64)
+    if next_key.size:
+        order = np.argsort(next_key, kind="stable")
+        cand = order[np.minimum(np.searchsorted(next_key[order], key), next_key.size - 1)]
+        found = next_key[cand] == key
+        j = np.where(found, cand, 0)
+    lo, hi = cfg.velocity_floor_mps, cfg.v_max_mps
+    v_new = np.clip(agents.velocity + action * cfg.dt_s, lo, hi)
+    reward = (v_new - hi) / (hi - lo)
+    collided = np.isin(agents.slot, events.collided_slot)
+    reward -= settings.collision_penalty * collided
+    nb_action, nb_mask = neighbour_actions(agents, action)
+    next_obs = np.zeros((n, k, 3), np.float32)
+    next_nb = np.zeros((n, k - 1), np.float32)
+    next_mask = np.zeros((n, k - 1), np.float32)
+    if next_key.size:
+        reward += np.where(found, settings.safety_weight * np.minimum(nxt.sv[j], 0.0) / 20.0,
+                           0.0)
+        nb_all, mask_all = neighbour_actions(nxt, next_target_action)
+        next_obs[found], next_nb[found], next_mask[found] = (
+            nxt.obs[j[found]], nb_all[j[found]], mask_all[j[found]])
+    return _Batch(
+        obs=agents.obs, action=action.astype(np.float32)[:, None],
+        neighbour_action=nb_action, neighbour_mask=nb_mask,
+        reward=reward.astype(np.float32)[:, None], next_obs=next_obs,
+        next_neighbour_action=next_nb, next_neighbour_mask=next_mask, terminated=~found,
+    )
+
+
+class VehicleLearner:
+    """The shared actor, the centralised critic, TorchRL's ``DDPGLoss`` with its soft target
+    update, Adam (one learning rate each) and a replay buffer."""
+
+    def __init__(self, settings: CoMADDPGSettings, a_max: float) -> None:
+        from tensordict.nn import TensorDictModule
+        from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+        from torchrl.objectives import DDPGLoss, SoftUpdate, ValueEstimators
+
+        k = settings.k
+        self.actor = VehicleActor(k, settings.hidden, a_max)
+        self.critic = VehicleCritic(k, settings.critic_hidden, a_max)
+        actor = TensorDictModule(self.actor, in_keys=["observation"], out_keys=["action"])
+        critic = TensorDictModule(
+            self.critic, in_keys=["observation", "action", "neighbour_action",
+                                  "neighbour_mask"], out_keys=["state_action_value"])
+        self.loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
+        self.loss.make_value_estimator(ValueEstimators.TD0, gamma=settings.gamma)
+        self.target = SoftUpdate(self.loss, tau=settings.tau)
+        self.optim = torch.optim.Adam([
+            {"params": list(self.actor.parameters()), "lr": settings.lr_actor},
+            {"params": list(self.critic.parameters()), "lr": settings.lr_critic},
+        ])
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(settings.buffer),
+                                             batch_size=settings.minibatch)
+        self.settings = settings
+
+    def act(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(n,) actions of the actor and of its target copy for observations ``(n, k, 3)``."""
+        if obs.shape[0] == 0:
+            return np.zeros(0), np.zeros(0)
+        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
+        with torch.no_grad():
+            mu = self.actor(x)[:, 0]
+            target_params = self.loss.target_actor_network_params
+            with target_params.to_module(self.loss.actor_network):
+                mu_target = self.loss.actor_network.module(x)[:, 0]
+        return mu.numpy().astype(np.float64), mu_target.numpy().astype(np.float64)
+
+    def add(self, batch: _Batch) -> None:
+        """Store one step's transitions."""
+        from tensordict import TensorDict
+
+        n = batch.obs.shape[0]
+        if n == 0:
+            return
+        t = torch.from_numpy
+        term = t(batch.terminated)[:, None]
+        self.buffer.extend(TensorDict({
+            "observation": t(batch.obs), "action": t(batch.action),
+            "neighbour_action": t(batch.neighbour_action),
+            "neighbour_mask": t(batch.neighbour_mask),
+            "next": TensorDict({
+                "observation": t(batch.next_obs),
+                "neighbour_action": t(batch.next_neighbour_action),
+                "neighbour_mask": t(batch.next_neighbour_mask),
+                "reward": t(batch.reward), "done": term, "terminated": term.clone(),
+            }, [n]),
+        }, [n]))
+
+    def update(self) -> tuple[float, float] | None:
+        """``updates_per_step`` gradient steps (after the warm-up): mean critic and actor loss."""
+        s = self.settings
+        if len(self.buffer) < s.warmup or s.updates_per_step == 0:
+            return None
+        critic_total = actor_total = 0.0
+        for _ in range(s.updates_per_step):
+            out = self.loss(self.buffer.sample())
+            total = out["loss_value"] + out["loss_actor"]
+            self.optim.zero_grad()
+            total.backward()
+            nn.utils.clip_grad_norm_(self.critic.parameters(), 10.0)
+            nn.utils.clip_grad_norm_(self.actor.parameters(), 10.0)
+            self.optim.step()
+            self.target.step()
+            critic_total += float(out["loss_value"].detach())
+            actor_total += float(out["loss_actor"].detach())
+        return critic_total / s.updates_per_step, actor_total / s.updates_per_step
+
+
+def training_env(settings: CoMADDPGSettings, cfg: MiVeCCConfig) -> Any:
+    """``settings.batch`` environments with the densities of ``settings.densities`` cycled
+    over them (no graphs observed: the vehicles observe themselves)."""
+    from mivecc_env.batched import BatchedMiVeCCEnv
+
+    densities = [settings.densities[i % len(settings.densities)] for i in range(settings.batch)]
+    return BatchedMiVeCCEnv(cfg, batch_size=settings.batch, densities=densities, observe=())
+
+
+def train_comaddpg(settings: CoMADDPGSettings,
+                   on_episode: Callable[[dict[str, float]], None] | None = None,
+                   ) -> tuple[CoMADDPGPolicy, list[dict[str, float]]]:
+    """Train a CoMADDPG policy (module docstring); returns it and one log row per episode.
+
+    Deterministic for a given ``settings`` (torch's global random state is used inside
+    :func:`torch.random.fork_rng` and left as it was). ``on_episode(row)`` is called after each
+    episode (progress). Log row keys: ``episode``, ``noise_sd`` (at the episode's end [m/s^2]),
+    ``reward_per_transition``, ``collisions`` (strict collision events of the episode, all
+    environments), ``avg_travel_velocity_mps`` and ``throughput`` (means over the
+    environments), ``critic_loss`` and ``actor_loss`` (NaN before the first update),
+    ``wall_s``.
+    """
+    settings.check()
+    cfg = settings.env_config()
+    env = training_env(settings, cfg)
+    b, k, a_max = settings.batch, settings.k, cfg.a_max_mps2
+    total_steps = settings.episodes * settings.episode_steps
+    decay = max(1.0, settings.noise_decay_fraction * total_steps)
+    log: list[dict[str, float]] = []
+    t0, done_steps = time.perf_counter(), 0
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(settings.seed)
+        learner = VehicleLearner(settings, a_max)
+        rng = np.random.default_rng(settings.seed)
+        for episode in range(settings.episodes):
+            first = FIRST_TRAIN_SEED + settings.seed * 1_000_000 + episode * b
+            env.reset(seed=[first + i for i in range(b)])
+            agents = observe_vehicles(env.sim, k)
+            mu, _ = learner.act(agents.obs)
+            rewards, critic_losses, actor_losses, collisions = [], [], [], 0
+            sigma = settings.noise_start
+            noise = np.zeros(0)
+            for t in range(settings.episode_steps):
+                frac = min(1.0, done_steps / decay)
+                sigma = settings.noise_start + frac * (settings.noise_end - settings.noise_start)
+                if t % settings.noise_hold_steps == 0 or noise.size != b * agents.capacity:
+                    noise = rng.standard_normal(b * agents.capacity)  # per vehicle slot, held
+                action = np.clip(mu + sigma * noise[agents.slot], -a_max, a_max)
+                env.step_vehicles(vehicle_commands(agents, action, b))
+                events = env.sim.last_events
+                collisions += int(events.collision_events.sum())
+                nxt = observe_vehicles(env.sim, k)
+                next_mu, next_target = learner.act(nxt.obs)
+                batch = transitions(agents, action, nxt, next_target, events, cfg, settings)
+                learner.add(batch)
+                if batch.reward.size:
+                    rewards.append(float(batch.reward.mean()))
+                losses = learner.update()
+                if losses is not None:
+                    critic_losses.append(losses[0])
+                    actor_losses.append(losses[1])
+                agents, mu = nxt, next_mu
+                done_steps += 1
+            summary = env.summary()
+            row = {"episode": episode + 1, "noise_sd": sigma,
+                   "reward_per_transition": float(np.mean(rewards)) if rewards else math.nan,
+                   "collisions": collisions,
+                   "avg_travel_velocity_mps": float(np.nanmean(
+                       summary["avg_travel_velocity_mps"])),
+                   "throughput": float(summary["throughput"].mean()),
+                   "critic_loss": float(np.mean(critic_losses)) if critic_losses else math.nan,
+                   "actor_loss": float(np.mean(actor_losses)) if actor_losses else math.nan,
+                   "wall_s": time.perf_counter() - t0}
+            log.append(row)
+            if on_episode is not None:
+                on_episode(row)
+    return CoMADDPGPolicy(learner.actor, settings.to_dict()), log
+
+
+def progress_line(row: dict[str, float], total: int) -> str:
+    """One episode's progress line of ``mivecc train-comaddpg``."""
+    return (f"episode {row['episode']:.0f}/{total}: reward/vehicle-step "
+            f"{row['reward_per_transition']:.3f}, velocity {row['avg_travel_velocity_mps']:.2f} "
+            f"m/s, collisions {row['collisions']:.0f}, noise {row['noise_sd']:.2f} m/s^2, "
+            f"critic loss {row['critic_loss']:.4f}, {row['wall_s']:.0f} s")
+
+
+def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
+    """A PNG of a training log: reward per transition, average travel velocity and collisions
+    per episode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    episodes = [r["episode"] for r in rows]
+    fig, axes = plt.subplots(3, 1, figsize=(7, 7.5), sharex=True)
+    series = (("reward_per_transition", "reward per vehicle-step"),
+              ("avg_travel_velocity_mps", "average travel\nvelocity [m/s]"),
+              ("collisions", "collision events\n(all environments)"))
+    for ax, (key, label) in zip(axes, series, strict=True):
+        ax.plot(episodes, [r[key] for r in rows], marker="o", ms=3)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].set_title("CoMADDPG training (exploration included; densities mixed)")
+    axes[-1].set_xlabel("episode")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

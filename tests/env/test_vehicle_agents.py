@@ -1,0 +1,119 @@
+"""Vehicles as agents (``mivecc_env.vehicle_agents``, ``BatchedMiVeCCEnv.step_vehicles``): who the
+agents are, what they observe, and that their accelerations are executed unmodified."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from mivecc_agents.comaddpg_settings import vehicle_agent_fields
+from mivecc_env.batched import BatchedMiVeCCEnv
+from mivecc_env.vehicle_agents import (
+    observe_vehicles,
+    vehicle_accelerations,
+    vehicle_commands,
+)
+
+
+def _env(batch: int = 2, **kw) -> BatchedMiVeCCEnv:
+    env = BatchedMiVeCCEnv(batch_size=batch, rows=2, cols=2, densities=[1500.0] * batch,
+                           **{**vehicle_agent_fields(), **kw})
+    env.reset(seed=list(range(3, 3 + batch)))
+    for _ in range(250):  # fill the network
+        env.step_commands(None, None)
+    return env
+
+
+def test_agents_are_the_vehicles_in_the_control_areas_in_environment_order() -> None:
+    env = _env()
+    sim = env.sim
+    agents = observe_vehicles(sim, 8)
+    view = sim.view
+    area = sim.network.control_area(view.lane, view.s)
+    assert len(agents) == int((area >= 0).sum()) > 20
+    assert np.all(np.diff(agents.env) >= 0)
+    assert set(agents.slot.tolist()) == set(view.vehicle[area >= 0].tolist())
+    for b in range(2):
+        rows = agents.rows_of(b)
+        assert np.all(agents.env[rows] == b) and (rows.stop - rows.start) == int(
+            ((area >= 0) & (view.env == b)).sum())
+    assert agents.obs.shape == (len(agents), 8, 3) and agents.obs.dtype == np.float32
+    assert np.abs(agents.obs).max() <= 1.0
+    np.testing.assert_array_equal(agents.vid, sim.vid.ravel()[agents.slot])
+    np.testing.assert_array_equal(agents.velocity, sim.v.ravel()[agents.slot])
+
+
+def test_an_agent_sees_what_its_edge_node_column_shows() -> None:
+    """With k = K_edge an agent's observation is its column of the edge state graph."""
+    env = _env(observe={"edge"})
+    step = env.step_commands(None, None)
+    graphs = env._edge
+    agents = observe_vehicles(env.sim, env.k_edge)
+    row_of_slot = {int(s): i for i, s in enumerate(agents.slot)}
+    checked = 0
+    for b, node, col in zip(*np.nonzero(step.edge_mask), strict=True):
+        i = row_of_slot[int(graphs.slot[b, node, col])]
+        np.testing.assert_array_equal(agents.obs[i], step.edge_obs[b, node, :, col, :])
+        checked += 1
+    assert checked > 20
+
+
+def test_reference_rows_name_the_agents_they_show() -> None:
+    agents = observe_vehicles(_env().sim, 8)
+    i, r = np.nonzero(agents.ref_agent >= 0)
+    assert i.size > 50
+    j = agents.ref_agent[i, r]
+    assert np.all(j != i) and np.all(agents.env[j] == agents.env[i])
+    # velocity and acceleration of a reference row are those of the agent it names
+    np.testing.assert_array_equal(agents.obs[i, r + 1, 1:], agents.obs[j, 0, 1:])
+    # padding rows (all zero) name no agent; a row that names none and is not padding shows a
+    # vehicle just outside every control area (a crossing vehicle projected into this one)
+    padding = np.all(agents.obs[:, 1:] == 0.0, axis=-1)
+    assert np.all(agents.ref_agent[padding] == -1)
+    assert (agents.ref_agent[~padding] == -1).mean() < 0.1
+
+
+def test_commands_act_unmodified_on_the_agents_and_the_rules_drive_the_others() -> None:
+    env = _env()
+    sim = env.sim
+    agents = observe_vehicles(sim, 8)
+    accel = np.where(np.arange(len(agents)) % 2 == 0, -3.0, 3.0)
+    cmd = vehicle_commands(agents, accel, 2)
+    assert cmd.shape == sim.active.shape
+    assert np.isnan(cmd).sum() == cmd.size - len(agents)
+    v0 = agents.velocity.copy()
+    others = np.setdiff1d(sim.view.vehicle, agents.slot)
+    env.step_vehicles(cmd)
+    c = sim.config
+    expected = np.clip(v0 + accel * c.dt_s, c.velocity_floor_mps, c.v_max_mps)
+    still = sim.active.ravel()[agents.slot] & (sim.vid.ravel()[agents.slot] == agents.vid)
+    np.testing.assert_allclose(sim.v.ravel()[agents.slot][still], expected[still], rtol=0,
+                               atol=1e-12)
+    # a plain E step of the same state moves the vehicles outside the areas alike
+    twin = _env(scheme="E")
+    twin.step_commands(None, None)
+    np.testing.assert_array_equal(twin.sim.v.ravel()[others], sim.v.ravel()[others])
+
+
+def test_step_vehicles_refuses_bad_input() -> None:
+    env = _env(batch=1)
+    agents = observe_vehicles(env.sim, 8)
+    cmd = vehicle_commands(agents, np.zeros(len(agents)), 1)
+    for bad, message in ((cmd[:, :-1], "accel: must have shape"),
+                         (np.where(np.isnan(cmd), np.nan, 3.5), r"accel: must be within"),
+                         (np.where(np.isnan(cmd), np.nan, np.inf), "accel: .*inf")):
+        with pytest.raises(ValueError, match=message):
+            env.step_vehicles(bad)
+    with pytest.raises(ValueError, match=r"accel: expected shape \(\d+,\)"):
+        vehicle_commands(agents, np.zeros(len(agents) + 1), 1)
+    with pytest.raises(ValueError, match="k: must be an integer >= 2"):
+        observe_vehicles(env.sim, 1)
+    for fields in ({"scheme": "E"}, {"control": "signalized", "scheme": "E"}):
+        other = BatchedMiVeCCEnv(rows=1, cols=1, **{**vehicle_agent_fields(), **fields})
+        other.reset(seed=0)
+        with pytest.raises(ValueError, match="step_vehicles: needs scheme 'EE' or 'EEC'"):
+            other.step_vehicles(np.full(other.sim.active.shape, np.nan))
+    with pytest.raises(ValueError, match="policy returned NaN or inf"):
+        vehicle_accelerations(lambda obs: np.full(len(obs), np.nan), agents, 1, 3.0)
+    with pytest.raises(ValueError, match="policy returned shape"):
+        vehicle_accelerations(lambda obs: np.zeros(len(obs) + 1), agents, 1, 3.0)
