@@ -161,6 +161,7 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     import importlib
 
     from mivecc_agents.cli import parse_set_items, set_inference_threads
+    from mivecc_agents.train_checks import quiet_train_output
 
     settings_spec, trainer_spec, checkpoint, _, _, log_module = TRAIN_COMMANDS[
         args.train_command]
@@ -174,6 +175,7 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out: {out} is a file; give a folder")
     set_inference_threads(args.threads)
+    quiet_train_output()  # TorchRL's log lines to stderr: stdout holds the checkpoint's path
     logs = importlib.import_module(log_module)
     total = settings.episodes + getattr(settings, "global_episodes", 0)
 

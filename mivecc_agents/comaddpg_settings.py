@@ -36,11 +36,11 @@ class CoMADDPGSettings:
     cols: int = _opt(1, "intersection columns of the training grid")
     k: int = _opt(8, "rows of a vehicle's observation: itself and its k - 1 nearest reference "
                   "vehicles on its virtual lane")
-    collision_penalty: float = _opt(10.0, "reward lost by a vehicle that collides (its last "
+    collision_penalty: float = _opt(20.0, "reward lost by a vehicle that collides (its last "
                                     "transition)")
-    safety_weight: float = _opt(0.5, "weight of the safety term min(SV, 0) / 20 of the "
+    safety_weight: float = _opt(2.0, "weight of the safety term min(SV, 0) / 20 of the "
                                 "reward (SV: the vehicle's safety value after the step)")
-    gamma: float = _opt(0.98, "discount per step of 0.1 s")
+    gamma: float = _opt(0.99, "discount per step of 0.1 s")
     lr_actor: float = _opt(3e-4, "Adam learning rate of the actor")
     lr_critic: float = _opt(1e-3, "Adam learning rate of the critic")
     hidden: int = _opt(64, "units of each of the actor's two hidden layers")
@@ -54,7 +54,7 @@ class CoMADDPGSettings:
     noise_start: float = _opt(1.0, "standard deviation of the Gaussian exploration noise on "
                               "each vehicle's acceleration at the start [m/s^2]")
     noise_end: float = _opt(0.1, "... after the decay [m/s^2]")
-    noise_hold_steps: int = _opt(20, "steps for which a vehicle's exploration noise is held "
+    noise_hold_steps: int = _opt(10, "steps for which a vehicle's exploration noise is held "
                                  "before it is drawn anew")
     noise_decay_fraction: float = _opt(0.6, "share of the steps over which the noise decays "
                                        "linearly")

@@ -182,3 +182,18 @@ def test_runs_are_reused_only_under_the_same_comparator_entry(tmp_path: Path) ->
     slowed = {k[0] for k in comparison.load_rows([path], comparator_entry="slowed")}
     assert default == {"E", "fixed-time", "max-pressure"}  # no column: the default rule
     assert slowed == {"E", "reservation"}  # MiVeCC's runs do not depend on it
+
+
+def test_comaddpg_runs_ignore_the_comparators_entry_rule() -> None:
+    # CoMADDPG enters like MiVeCC: its 42 runs under comparator_entry="slowed" are those of the
+    # default (docs/comparators.md, "CoMADDPG")
+    docs = Path(__file__).resolve().parents[1] / "docs" / "results"
+    keys = ("avg_travel_velocity_mps", "collisions", "throughput", "backlog", "min_pet_s")
+
+    def runs(folder: str) -> dict[tuple, tuple]:
+        with open(docs / folder / "comparison.csv", newline="", encoding="utf-8") as fh:
+            return {(r["rows"], r["density"], r["seed"]): tuple(r[k] for k in keys)
+                    for r in csv.DictReader(fh) if r["scheme"] == "comaddpg"}
+
+    default, slowed = runs("comparison"), runs("comparison_slowed_entry")
+    assert len(default) == 42 and default == slowed

@@ -1,0 +1,227 @@
+"""CoMADDPG (``mivecc_agents.comaddpg``): transitions and rewards, the critic's inputs, settings,
+deterministic training, checkpoints, the ``comaddpg`` scheme and its command line."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from mivecc_agents import cli
+from mivecc_agents.checkpoints import CheckpointError
+from mivecc_agents.comaddpg import (
+    SHIPPED_PATH,
+    CoMADDPGPolicy,
+    CoMADDPGSettings,
+    VehicleActor,
+    VehicleLearner,
+    neighbour_actions,
+    train_comaddpg,
+    transitions,
+)
+from mivecc_agents.comaddpg_settings import vehicle_agent_fields
+from mivecc_agents.evaluation import evaluate_batch, evaluate_scheme
+from mivecc_agents.signal_dqn import shipped_policy_path as shipped_pa_dqn_path
+from mivecc_env.batched import BatchedMiVeCCEnv
+from mivecc_env.config import ConfigError
+from mivecc_env.vehicle_agents import observe_vehicles, vehicle_commands
+
+TINY = CoMADDPGSettings(episodes=2, batch=2, episode_steps=150, warmup=64, minibatch=32,
+                        densities=(1500.0,))
+
+
+@pytest.fixture(scope="module")
+def tiny_run():
+    return train_comaddpg(TINY)
+
+
+def _filled_env(density: float = 2100.0) -> BatchedMiVeCCEnv:
+    env = BatchedMiVeCCEnv(batch_size=1, rows=1, cols=1, density=density,
+                           **vehicle_agent_fields())
+    env.reset(seed=5)
+    for _ in range(300):
+        env.step_commands(None, None)
+    return env
+
+
+def test_transitions_follow_each_vehicle_and_end_where_it_leaves() -> None:
+    env = _filled_env()
+    cfg, settings = env.config, CoMADDPGSettings()
+    agents = observe_vehicles(env.sim, settings.k)
+    action = np.linspace(-3.0, 3.0, len(agents))
+    env.step_vehicles(vehicle_commands(agents, action, 1))
+    nxt = observe_vehicles(env.sim, settings.k)
+    target = np.full(len(nxt), 1.5)
+    batch = transitions(agents, action, nxt, target, env.sim.last_events, cfg, settings)
+    next_of = {int(v): i for i, v in enumerate(nxt.vid)}
+    for i, vid in enumerate(agents.vid):
+        j = next_of.get(int(vid))
+        assert batch.terminated[i] == (j is None)
+        v_new = np.clip(agents.velocity[i] + action[i] * cfg.dt_s, cfg.velocity_floor_mps,
+                        cfg.v_max_mps)
+        expected = (v_new - cfg.v_max_mps) / (cfg.v_max_mps - cfg.velocity_floor_mps)
+        if j is None:
+            np.testing.assert_array_equal(batch.next_obs[i], 0.0)
+        else:
+            expected += settings.safety_weight * min(nxt.sv[j], 0.0) / 20.0
+            np.testing.assert_array_equal(batch.next_obs[i], nxt.obs[j])
+            real = nxt.ref_agent[j] >= 0
+            np.testing.assert_array_equal(batch.next_neighbour_action[i], np.where(real, 1.5, 0))
+            np.testing.assert_array_equal(batch.next_neighbour_mask[i], real)
+        assert batch.reward[i, 0] == pytest.approx(expected, abs=1e-6)
+    assert batch.terminated.sum() < len(agents) / 5
+    nb, mask = neighbour_actions(agents, action)
+    real = agents.ref_agent >= 0
+    np.testing.assert_array_equal(nb, np.where(real, action[agents.ref_agent], 0.0).astype(
+        np.float32))
+    np.testing.assert_array_equal(mask, real)
+
+
+def test_a_collided_vehicle_loses_the_penalty_and_its_transition_ends() -> None:
+    env = _filled_env()
+    settings = CoMADDPGSettings()
+    hit = None
+    for _ in range(400):  # full throttle everywhere: the crossing streams collide
+        agents = observe_vehicles(env.sim, settings.k)
+        action = np.full(len(agents), 3.0)
+        env.step_vehicles(vehicle_commands(agents, action, 1))
+        events = env.sim.last_events
+        if events.collided_slot.size:
+            hit = np.isin(agents.slot, events.collided_slot)
+            break
+    assert hit is not None and hit.sum() >= 2
+    nxt = observe_vehicles(env.sim, settings.k)
+    batch = transitions(agents, action, nxt, np.zeros(len(nxt)), events, env.config, settings)
+    assert np.all(batch.terminated[hit])
+    assert np.all(batch.reward[hit, 0] <= -settings.collision_penalty)
+    assert np.all(batch.reward[~hit, 0] > -settings.collision_penalty)
+
+
+def test_the_critic_reads_the_reference_vehicles_actions() -> None:
+    torch.manual_seed(0)
+    learner = VehicleLearner(CoMADDPGSettings(), 3.0)
+    obs = torch.rand(5, 8, 3) * 2 - 1
+    action = torch.zeros(5, 1)
+    mask = torch.ones(5, 7)
+    q0 = learner.critic(obs, action, torch.zeros(5, 7), mask)
+    q1 = learner.critic(obs, action, torch.full((5, 7), 3.0), mask)
+    assert not torch.allclose(q0, q1)
+    mu, mu_target = learner.act(obs.numpy())
+    np.testing.assert_array_equal(mu, mu_target)  # the target starts as a copy
+    assert np.all(np.abs(mu) <= 3.0)
+
+
+def test_settings_errors_name_the_field() -> None:
+    for kw, message in (({"k": 1}, r"k: must be an integer in \[2, 64\]"),
+                        ({"gamma": 1.5}, r"gamma: must be a number in \[0.0, 1.0\]"),
+                        ({"noise_hold_steps": 0}, "noise_hold_steps: must be an integer"),
+                        ({"densities": ()}, "densities: must be one or more numbers"),
+                        ({"config": {"scheme": "E"}}, "config: scheme is set by the training"),
+                        ({"config": {"omega": 7}}, "omega")):
+        with pytest.raises(ConfigError, match=message):
+            CoMADDPGSettings(**kw).check()
+
+
+def test_training_is_deterministic_and_leaves_torch_rng_alone(tiny_run) -> None:
+    policy, log = tiny_run
+    assert [r["episode"] for r in log] == [1, 2]
+    assert all(np.isfinite(r["critic_loss"]) for r in log)
+    state = torch.random.get_rng_state()
+    again, log2 = train_comaddpg(TINY)
+    assert torch.equal(torch.random.get_rng_state(), state)
+    for a, b in zip(policy.actor.state_dict().values(), again.actor.state_dict().values(),
+                    strict=True):
+        assert torch.equal(a, b)
+    assert [r["reward_per_transition"] for r in log] == [r["reward_per_transition"]
+                                                          for r in log2]
+
+
+def test_checkpoints_round_trip_and_refuse_foreign_files(tiny_run, tmp_path) -> None:
+    policy = tiny_run[0]
+    path = policy.save(tmp_path / "c.pt")
+    loaded = CoMADDPGPolicy.load(path)
+    obs = np.random.default_rng(0).uniform(-1, 1, (9, TINY.k, 3)).astype(np.float32)
+    np.testing.assert_array_equal(loaded(obs), policy(obs))
+    assert loaded.settings == TINY.to_dict() and loaded.checkpoint == str(path)
+    with pytest.raises(CheckpointError, match="holds the 'signal_dqn' policy, but a 'comaddpg'"):
+        CoMADDPGPolicy.load(shipped_pa_dqn_path(1, 1))
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(CheckpointError, match=r"bad\.pt"):
+        CoMADDPGPolicy.load(bad)
+    with pytest.raises(ValueError, match=r"obs: expected shape \(n, 8, 3\)"):
+        policy(obs[:, :4])
+
+
+def test_evaluation_batch_equals_single_runs_and_checks_its_policy(tiny_run) -> None:
+    policy = tiny_run[0]
+    batch = evaluate_batch("comaddpg", 1, 1, [600, 1800], 200, [0, 1],
+                           policies={"vehicle": policy}, progress=False)
+    single = evaluate_scheme("comaddpg", 1, 1, 1800, 200, 1, policies={"vehicle": policy},
+                             progress=False)
+    keys = ["avg_travel_velocity_mps", "throughput", "collisions", "backlog", "mean_speed_mps"]
+    assert [single[k] for k in keys] == [batch[3][k] for k in keys]
+    assert single["coordinator_actions"] == "policy" and single["scheme"] == "comaddpg"
+    assert single["control"] == "unsignalized" and "batch_size" not in single
+    with pytest.raises(ConfigError, match=r"scheme 'comaddpg' needs policies\['vehicle'\]"):
+        evaluate_scheme("comaddpg", 1, 1, 900, 10, 0, progress=False)
+    with pytest.raises(ConfigError, match="'vehicle' is used by scheme"):
+        evaluate_scheme("E", 1, 1, 900, 10, 0, policies={"vehicle": policy}, progress=False)
+    with pytest.raises(ConfigError, match="step_hook: not available"):
+        evaluate_scheme("comaddpg", 1, 1, 900, 10, 0, policies={"vehicle": policy},
+                        progress=False, step_hook=lambda env, t: None)
+
+
+def test_command_line(tmp_path, capsys) -> None:
+    out = tmp_path / "run"
+    assert cli.main(["train-comaddpg", "--out", str(out), "--episodes", "1", "--batch", "1",
+                     "--episode-steps", "120", "--warmup", "32", "--minibatch", "16",
+                     "--densities", "900"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.strip() == str(out / "comaddpg.pt")
+    assert "episode 1/1: reward/vehicle-step" in captured.err
+    assert (out / "train_log.csv").read_text().startswith("episode,noise_sd,")
+    assert (out / "learning_curve.png").stat().st_size > 10_000
+    assert cli.main(["evaluate", "--scheme", "comaddpg", "--vehicle-checkpoint",
+                     str(out / "comaddpg.pt"), "--steps", "100", "--json",
+                     "--no-progress"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["scheme"] == "comaddpg"
+    assert result["vehicle_checkpoint"].endswith("comaddpg.pt")
+    for argv, message in (
+        (["evaluate", "--scheme", "comaddpg", "--no-pretrained"],
+         "scheme comaddpg needs a vehicle policy; give --vehicle-checkpoint"),
+        (["evaluate", "--scheme", "comaddpg", "--vehicle-checkpoint", str(tmp_path / "no.pt")],
+         "--vehicle-checkpoint: "),
+        (["evaluate", "--scheme", "comaddpg", "--vehicle-checkpoint",
+          str(shipped_pa_dqn_path(1, 1))], "holds the 'signal_dqn' policy"),
+        (["train-comaddpg", "--out", str(out), "--gamma", "2"], "gamma: must be a number"),
+    ):
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err
+        assert len(err.strip().splitlines()) == 1
+
+
+def test_shipped_policy_is_the_documented_run() -> None:
+    shipped = CoMADDPGPolicy.load(SHIPPED_PATH)
+    assert shipped.settings == CoMADDPGSettings().to_dict()  # `mivecc train-comaddpg --out DIR`
+    assert shipped.k == CoMADDPGSettings().k
+    assert isinstance(shipped.actor, VehicleActor)
+
+
+def test_shipped_policy_reproduces_its_committed_comparison_run() -> None:
+    import csv
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "docs/results/comparison/comparison.csv"
+    with open(path, newline="", encoding="utf-8") as fh:
+        (row,) = [r for r in csv.DictReader(fh) if r["scheme"] == "comaddpg"
+                  and r["rows"] == "1" and float(r["density"]) == 1500 and r["seed"] == "1"]
+    run = evaluate_scheme("comaddpg", 1, 1, 1500, 3000, 1, progress=False,
+                          policies={"vehicle": CoMADDPGPolicy.load(SHIPPED_PATH)})
+    for key in ("avg_travel_velocity_mps", "collisions", "throughput", "backlog"):
+        assert run[key] == float(row[key]), key
+    assert run["collisions"] == 1.0  # documented: collisions from 1500 veh/lane/h on
