@@ -1256,3 +1256,26 @@ def test_eec_vs_coder_is_the_committed_comparison() -> None:
     gains = [comparison.gain(rows, (3, 3), d, "EEC", "coder") for d in DENSITIES]
     quoted = ", ".join(f"{g:+.1f} %" for g in gains)
     assert quoted in " ".join(RESULTS.split())
+
+
+def test_comaddpg_paragraph_is_the_committed_comparison() -> None:
+    """README's CoMADDPG figures (1x1): its velocities at 300 and 2100, EEC's, the strict
+    events per density, and its place between EE and EEC, from the committed comparison."""
+    import comparison
+
+    table = comparison.summarise(
+        list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
+                                   "comparison.csv"]).values()),
+        [(1, 1)], ["EE", "EEC", "comaddpg"], DENSITIES)
+    cell = {(t["scheme"], t["density"]): t for t in table}
+    v = {k: round(t["velocity_mean_mps"], 2) for k, t in cell.items()}
+    text = " ".join(RESULTS.split())
+    assert (f"({v['comaddpg', 300]:.2f} to {v['comaddpg', 2100]:.2f} m/s from 300 to 2100 "
+            f"veh/lane/h; EEC {v['EEC', 300]:.2f} to {v['EEC', 2100]:.2f})") in text
+    events = [cell["comaddpg", d]["collisions"] for d in DENSITIES]
+    assert events == [0, 0, 0, 0, 3, 2, 1]
+    assert "collision-free up to 1200 and with 3, 2, 1 strict events at 1500, 1800" in text
+    assert all(cell["EE", d]["collisions"] == cell["EEC", d]["collisions"] == 0
+               for d in (1500, 1800, 2100))
+    assert all(cell["EE", d]["velocity_mean_mps"] < cell["comaddpg", d]["velocity_mean_mps"]
+               < cell["EEC", d]["velocity_mean_mps"] for d in DENSITIES)
