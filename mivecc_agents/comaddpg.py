@@ -51,7 +51,7 @@ from torch import nn
 
 from mivecc_agents.checkpoints import corrupt_policy, read_policy_file, save_checkpoint
 from mivecc_agents.comaddpg_settings import CoMADDPGSettings
-from mivecc_agents.signal_dqn import FIRST_TRAIN_SEED, SHIPPED_DIR, write_log
+from mivecc_agents.signal_dqn import FIRST_TRAIN_SEED, SHIPPED_DIR, save_figure, write_log
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.core import StepEvents
 from mivecc_env.vehicle_agents import VehicleAgents, observe_vehicles, vehicle_commands
@@ -409,9 +409,4 @@ def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> P
         ax.grid(alpha=0.3)
     axes[0].set_title("CoMADDPG training (exploration included; densities mixed)")
     axes[-1].set_xlabel("episode")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

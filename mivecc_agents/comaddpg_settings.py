@@ -6,19 +6,13 @@ importing torch.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from mivecc_agents.signal_dqn_settings import check_densities, check_numbers
+from mivecc_agents.signal_dqn_settings import _opt, check_densities, check_numbers, plain_dict
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 
 __all__ = ["CoMADDPGSettings"]
-
-
-def _opt(default: Any, help_text: str) -> Any:
-    """A settings field with its help text (``field.metadata["help"]``)."""
-    return field(default=default, metadata={"help": help_text})
 
 
 @dataclass(frozen=True)
@@ -92,9 +86,7 @@ class CoMADDPGSettings:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values (for checkpoints and logs)."""
-        data = dataclasses.asdict(self)
-        data["densities"] = list(self.densities)
-        return data
+        return plain_dict(self)
 
 
 def vehicle_agent_fields() -> dict[str, Any]:

@@ -397,6 +397,13 @@ def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> P
     bottom.legend()
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
+    return save_figure(fig, path)
+
+
+def save_figure(fig: Any, path: str | Path) -> Path:
+    """Lay out ``fig``, write it as a PNG at ``path`` (its folder made if needed), close it."""
+    import matplotlib.pyplot as plt
+
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

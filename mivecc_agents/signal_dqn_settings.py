@@ -15,7 +15,7 @@ import numpy as np
 
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 
-__all__ = ["SignalDQNSettings", "check_densities", "check_numbers", "decision_steps"]
+__all__ = ["SignalDQNSettings", "check_densities", "check_numbers", "decision_steps", "plain_dict"]
 
 
 def _opt(default: Any, help_text: str) -> Any:
@@ -88,9 +88,7 @@ class SignalDQNSettings:
 
     def to_dict(self) -> dict[str, Any]:
         """Plain values (for checkpoints and logs)."""
-        data = dataclasses.asdict(self)
-        data["densities"] = list(self.densities)
-        return data
+        return plain_dict(self)
 
 
 def decision_steps(period_s: float, dt_s: float) -> int:
@@ -101,6 +99,13 @@ def decision_steps(period_s: float, dt_s: float) -> int:
         raise ConfigError(f"decision_period_s: must be a whole number >= 1 of steps of "
                           f"{dt_s} s, got {period_s!r}")
     return steps
+
+
+def plain_dict(settings: Any) -> dict[str, Any]:
+    """A settings dataclass as plain values (for checkpoints and logs; densities a list)."""
+    data = dataclasses.asdict(settings)
+    data["densities"] = list(data["densities"])
+    return data
 
 
 def check_numbers(settings: Any, ints: dict[str, tuple[int, int]],
