@@ -1,4 +1,4 @@
-"""The paper's efficiency comparison: E, EE, EEC and a signalized baseline over densities.
+"""The paper's efficiency comparison: E, EE, EEC, a signalized baseline and Coder over densities.
 
 For every grid, density, scheme and seed this runs one evaluation episode with the shipped
 pretrained coordinators (or the checkpoints given with ``--edge`` / ``--cloud``); all densities
@@ -12,8 +12,9 @@ writes
 
 * ``paper_table.csv`` - one row per run,
 * ``paper_table.md`` - per grid and density: mean average travel velocity of each scheme, the
-  upper bound, collisions, and the improvement rates EE vs E, EEC vs E, EEC vs EE and EEC vs the
-  signalized baseline next to the paper's Table (3x3),
+  upper bound, collisions, and the improvement rates EE vs E, EEC vs E, EEC vs EE, EEC vs the
+  signalized baseline and EEC vs Coder (the shipped Coder policy, on grids of at least 2x2)
+  next to the paper's Table (3x3),
 * ``velocity_vs_density_<grid>.png`` - average travel velocity vs density per scheme with the
   upper bound,
 * ``gains_<grid>.png`` - the gains in per cent vs density, paired by seed, in average travel
@@ -30,8 +31,13 @@ writes
   ``paper_table.md``): runs with a learned policy reproduce bit for bit on the same kind of CPU,
   not across CPUs (``benchmarks/table_diff.py`` compares two tables).
 
-Usage (the full table; 168 episodes in 8 batches):
+Usage (the full table; 252 episodes in 12 batches; then Coder's 21 runs, merged):
     python benchmarks/paper_table.py --grids 1x1 3x3 --seeds 0 1 2 --steps 3000 --workers 2
+    python benchmarks/paper_table.py --grids 3x3 --schemes coder --seeds 0 1 2 --steps 3000 \
+        --workers 1 --out benchmarks/results/paper_table/coder_runs
+    python benchmarks/paper_table.py --grids 1x1 3x3 --from-csv \
+        benchmarks/results/paper_table/paper_table.csv \
+        benchmarks/results/paper_table/coder_runs/paper_table.csv
 """
 
 from __future__ import annotations
@@ -51,7 +57,10 @@ from mivecc_env import cli_args
 from mivecc_env.config import from_overrides
 from mivecc_env.processes import map_jobs
 
-SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3")
+SCHEMES = ("signalized", "E", "EE", "EEC", "EE+3", "EEC+3", "coder")
+#: What runs without ``--schemes``: every scheme but Coder (``--schemes coder`` adds its runs,
+#: merged with ``--from-csv``: the published tables were made without it; it needs a 2x2 grid).
+DEFAULT_SCHEMES = SCHEMES[:-1]
 #: Constant-action ceilings: the scheme run, and the coordinator replaced by a constant +3 m/s^2
 #: (EE+3: every edge action +3; EEC+3: the learned edge and a cloud that always sends +3).
 CEILINGS: dict[str, tuple[str, str]] = {"EE+3": ("EE", "edge"), "EEC+3": ("EEC", "cloud")}
@@ -59,14 +68,14 @@ DENSITIES = (300, 600, 900, 1200, 1500, 1800, 2100)
 
 #: The paper's Table eff_imp_rate (3x3 grid), improvement of the average velocity [%].
 PAPER_3X3: dict[str, dict[int, float]] = {
-    "EEC vs signalized (paper: vs Coder)": dict(zip(DENSITIES, (
+    "EEC vs Coder": dict(zip(DENSITIES, (
         79.80, 85.10, 146.63, 283.32, 352.26, 419.48, 459.09), strict=True)),
     "EE vs E": dict(zip(DENSITIES, (0.14, 0.40, 0.52, 0.91, 1.47, 1.92, 2.12), strict=True)),
     "EEC vs E": dict(zip(DENSITIES, (0.37, 1.00, 1.56, 1.96, 2.32, 2.76, 2.96), strict=True)),
     "EEC vs EE": dict(zip(DENSITIES, (0.23, 0.6, 1.03, 1.04, 0.84, 0.83, 0.82), strict=True)),
 }
 COMPARISONS = (("EE", "E"), ("EEC", "E"), ("EEC", "EE"), ("EEC", "signalized"),
-               ("EE+3", "E"), ("EEC+3", "EE"))
+               ("EE+3", "E"), ("EEC+3", "EE"), ("EEC", "coder"))
 
 
 def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str | None, str,
@@ -84,6 +93,10 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
     policies = pretrained_policies(model, edge=edge_path, cloud=cloud_path,
                                    safety_shield=config.safety_shield)
     run_scheme = scheme
+    if scheme == "coder":  # the shipped Coder policy of the grid (signal agents)
+        from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
+
+        policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
     if scheme in CEILINGS:
         run_scheme, kind = CEILINGS[scheme]
         policies[kind] = ceiling_policy(kind, config)
@@ -334,6 +347,8 @@ def _label(scheme: str) -> str:
     """Legend name of a scheme."""
     if scheme == "signalized":
         return "signalized (fixed time + IDM)"
+    if scheme == "coder":
+        return "Coder (learned signals)"
     if scheme in CEILINGS:
         return f"ceiling {scheme}: {CEILINGS[scheme][1]} always +3 m/s^2"
     return f"MiVeCC-{scheme}"
@@ -387,7 +402,9 @@ def main(argv: Sequence[str] | None = None) -> Path:
     parser = cli_args.Parser(description=__doc__.splitlines()[0])
     parser.add_argument("--grids", nargs="+", type=_grid_name, default=["1x1", "3x3"])
     parser.add_argument("--densities", type=cli_args.density, nargs="+", default=list(DENSITIES))
-    parser.add_argument("--schemes", nargs="+", default=list(SCHEMES), choices=SCHEMES)
+    parser.add_argument("--schemes", nargs="+", default=list(DEFAULT_SCHEMES), choices=SCHEMES,
+                        help="default: all but coder (the shipped Coder policy, grids of at "
+                        "least 2x2; run it on its own and merge with --from-csv)")
     parser.add_argument("--seeds", type=cli_args.seed, nargs="+", default=[0, 1, 2])
     parser.add_argument("--steps", type=cli_args.count(1), default=3000)
     parser.add_argument("--edge", default=None, help="edge checkpoint (default: shipped)")
@@ -424,6 +441,8 @@ def main(argv: Sequence[str] | None = None) -> Path:
     for grid in args.grids:
         r, c = (int(x) for x in grid.split("x"))
         for scheme in args.schemes:
+            if scheme == "coder" and min(r, c) < 2:  # Coder needs 2x2 regions
+                continue
             jobs.append((scheme, r, c, list(args.densities), args.steps, list(args.seeds),
                          args.edge, args.cloud, args.model, args.cloud_period, overrides,
                          args.per_env_calls))
@@ -444,6 +463,10 @@ def main(argv: Sequence[str] | None = None) -> Path:
         machine = machine_info(with_torch=True)
         (args.out / "machine.json").write_text(json.dumps(machine, indent=2) + "\n")
         parts[1:1] = ["", f"Machine: {describe(machine)} (`machine.json`)."]
+    else:  # where each CSV's runs were made, if its folder says so
+        parts[1:1] = ["", *[f"Runs of `{path}` made on: {describe(json.loads(info.read_text()))}"
+                            f" (`{info}`)." for path in args.from_csv
+                            if (info := Path(path).parent / "machine.json").is_file()]]
     for grid in args.grids:
         text, mean = summarise(rows, grid)
         parts += [text, ""]

@@ -197,3 +197,20 @@ def test_comaddpg_runs_ignore_the_comparators_entry_rule() -> None:
 
     default, slowed = runs("comparison"), runs("comparison_slowed_entry")
     assert len(default) == 42 and default == slowed
+
+
+def test_paper_tables_coder_runs_are_the_comparisons() -> None:
+    # benchmarks/paper_table.py ran Coder as one batch of 21 environments, the comparison one
+    # run at a time: the same trajectories (velocity, collisions, throughput, backlog)
+    docs = Path(__file__).resolve().parents[1] / "docs" / "results"
+    keys = ("avg_travel_velocity_mps", "collisions", "throughput", "backlog")
+
+    def runs(path: Path) -> dict[tuple, tuple]:
+        with open(path, newline="", encoding="utf-8") as fh:
+            return {(float(r["density"]), int(r["seed"])): tuple(float(r[k]) for k in keys)
+                    for r in csv.DictReader(fh) if r["scheme"] == "coder"}
+
+    table = runs(docs / "paper_table" / "paper_table.csv")
+    assert len(table) == 21
+    assert table == runs(docs / "paper_table" / "coder_runs" / "paper_table.csv")
+    assert table == runs(docs / "comparison" / "comparison.csv")

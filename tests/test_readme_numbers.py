@@ -1165,7 +1165,9 @@ def test_session34_rules_only_runs_on_a_cpu_without_avx512():
     differ: dict[tuple[str, str], int] = {}
     largest_rules_only = 0.0
     for model, published in (("released", "paper_table_released"), ("default", "paper_table")):
-        a = runs(ROOT / "docs" / "results" / published / "paper_table.csv")
+        # (the Coder runs, added to the default table in session 43, were not rerun then)
+        a = {k: r for k, r in runs(ROOT / "docs" / "results" / published /
+                                     "paper_table.csv").items() if k[1] != "coder"}
         b = runs(here / model / "paper_table.csv")
         assert a.keys() == b.keys() and len(a) == 252
         assert '"avx512f"' not in (here / model / "machine.json").read_text()
