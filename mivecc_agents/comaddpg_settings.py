@@ -76,7 +76,7 @@ class CoMADDPGSettings:
 
     def env_config(self) -> MiVeCCConfig:
         """The training environments' config (``ConfigError`` for a bad field)."""
-        for name in ("rows", "cols", "control", "scheme", "max_steps", "safety_shield"):
+        for name in ("rows", "cols", "max_steps", *vehicle_agent_fields()):
             if name in self.config:
                 raise ConfigError(f"config: {name} is set by the training settings, not by "
                                   "a config field")
@@ -91,5 +91,6 @@ class CoMADDPGSettings:
 
 def vehicle_agent_fields() -> dict[str, Any]:
     """The config fields under which vehicle agents act (``BatchedMiVeCCEnv.step_vehicles``):
-    unsignalized control, the vehicles' command carried as the edge action (scheme ``EE``)."""
-    return {"control": "unsignalized", "scheme": "EE", "safety_shield": False}
+    unsignalized control, the vehicles' command carried as the edge action (scheme ``EE``), the
+    default model (the released one's overrides would replace the vehicles' actions)."""
+    return {"control": "unsignalized", "scheme": "EE", "safety_shield": False, "model": "paper"}

@@ -375,15 +375,20 @@ class BatchedMiVeCCEnv:
 
         Raises:
             RuntimeError: ``reset`` has not been called.
-            ValueError: not scheme ``EE`` / ``EEC`` under unsignalized control (the command
-                travels as the edge action), the wrong shape, +-inf, or a value outside
-                ``[-a_max, a_max]``.
+            ValueError: not scheme ``EE`` / ``EEC`` under unsignalized control without the
+                safety shield (the command travels as the edge action), one of the released
+                code's overrides on (``header_rule``, ``sections``, ``speed_reset``), the wrong
+                shape, +-inf, or a value outside ``[-a_max, a_max]``.
         """
         c = self.config
         if c.scheme == "E" or c.control != "unsignalized" or c.safety_shield:
             raise ValueError("step_vehicles: needs scheme 'EE' or 'EEC', control='unsignalized' "
                              f"and no safety_shield, got scheme={c.scheme!r}, "
                              f"control={c.control!r}, safety_shield={c.safety_shield!r}")
+        overriding = [f for f in ("header_rule", "sections", "speed_reset") if getattr(c, f)]
+        if overriding:  # the released code's overrides would replace the vehicles' actions
+            raise ValueError(f"step_vehicles: needs {', '.join(overriding)} off (they override "
+                             "every action; e.g. model='paper'), got them on")
         if not self._started:
             raise RuntimeError("step: call reset() first")
         sim = self.sim

@@ -119,6 +119,7 @@ def test_settings_errors_name_the_field() -> None:
                         ({"noise_hold_steps": 0}, "noise_hold_steps: must be an integer"),
                         ({"densities": ()}, "densities: must be one or more numbers"),
                         ({"config": {"scheme": "E"}}, "config: scheme is set by the training"),
+                        ({"config": {"model": "released"}}, "config: model is set by the"),
                         ({"config": {"omega": 7}}, "omega")):
         with pytest.raises(ConfigError, match=message):
             CoMADDPGSettings(**kw).check()
@@ -169,6 +170,9 @@ def test_evaluation_batch_equals_single_runs_and_checks_its_policy(tiny_run) -> 
         evaluate_scheme("comaddpg", 1, 1, 900, 10, 0, progress=False)
     with pytest.raises(ConfigError, match="'vehicle' is used by scheme"):
         evaluate_scheme("E", 1, 1, 900, 10, 0, policies={"vehicle": policy}, progress=False)
+    with pytest.raises(ConfigError, match="model: scheme 'comaddpg' needs model='paper'"):
+        evaluate_scheme("comaddpg", 1, 1, 900, 10, 0, policies={"vehicle": policy},
+                        progress=False, model="released")
     with pytest.raises(ConfigError, match="step_hook: not available"):
         evaluate_scheme("comaddpg", 1, 1, 900, 10, 0, policies={"vehicle": policy},
                         progress=False, step_hook=lambda env, t: None)

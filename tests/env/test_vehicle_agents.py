@@ -113,6 +113,11 @@ def test_step_vehicles_refuses_bad_input() -> None:
         other.reset(seed=0)
         with pytest.raises(ValueError, match="step_vehicles: needs scheme 'EE' or 'EEC'"):
             other.step_vehicles(np.full(other.sim.active.shape, np.nan))
+    released = BatchedMiVeCCEnv(rows=1, cols=1, **{**vehicle_agent_fields(), "model": "released"})
+    released.reset(seed=0)
+    with pytest.raises(ValueError, match="step_vehicles: needs header_rule, sections, speed_reset "
+                                         "off"):
+        released.step_vehicles(np.full(released.sim.active.shape, np.nan))
     with pytest.raises(ValueError, match="policy returned NaN or inf"):
         vehicle_accelerations(lambda obs: np.full(len(obs), np.nan), agents, 1, 3.0)
     with pytest.raises(ValueError, match="policy returned shape"):
