@@ -54,7 +54,13 @@ from mivecc_agents.comaddpg_settings import CoMADDPGSettings
 from mivecc_agents.signal_dqn import FIRST_TRAIN_SEED, SHIPPED_DIR, save_figure, write_log
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.core import StepEvents
-from mivecc_env.vehicle_agents import VehicleAgents, observe_vehicles, vehicle_commands
+from mivecc_env.vehicle_agents import (
+    VehicleAgents,
+    follow,
+    observe_vehicles,
+    vehicle_commands,
+    vehicle_rewards,
+)
 
 __all__ = ["SHIPPED_PATH", "CoMADDPGPolicy", "CoMADDPGSettings", "VehicleActor",
            "VehicleCritic", "progress_line", "train_comaddpg", "write_log"]
@@ -192,26 +198,14 @@ def transitions(agents: VehicleAgents, action: np.ndarray, nxt: VehicleAgents,
     docstring.
     """
     n, k = len(agents), agents.obs.shape[1]
-    key = agents.env * (1 << 32) + agents.vid
-    next_key = nxt.env * (1 << 32) + nxt.vid
-    found, j = np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64)
-    if next_key.size:
-        order = np.argsort(next_key, kind="stable")
-        cand = order[np.minimum(np.searchsorted(next_key[order], key), next_key.size - 1)]
-        found = next_key[cand] == key
-        j = np.where(found, cand, 0)
-    lo, hi = cfg.velocity_floor_mps, cfg.v_max_mps
-    v_new = np.clip(agents.velocity + action * cfg.dt_s, lo, hi)
-    reward = (v_new - hi) / (hi - lo)
-    collided = np.isin(agents.slot, events.collided_slot)
-    reward -= settings.collision_penalty * collided
+    found, j = follow(agents, nxt)
+    reward = vehicle_rewards(agents, action, nxt, events, cfg, settings.collision_penalty,
+                             settings.safety_weight)
     nb_action, nb_mask = neighbour_actions(agents, action)
     next_obs = np.zeros((n, k, 3), np.float32)
     next_nb = np.zeros((n, k - 1), np.float32)
     next_mask = np.zeros((n, k - 1), np.float32)
-    if next_key.size:
-        reward += np.where(found, settings.safety_weight * np.minimum(nxt.sv[j], 0.0) / 20.0,
-                           0.0)
+    if len(nxt):
         nb_all, mask_all = neighbour_actions(nxt, next_target_action)
         next_obs[found], next_nb[found], next_mask[found] = (
             nxt.obs[j[found]], nb_all[j[found]], mask_all[j[found]])

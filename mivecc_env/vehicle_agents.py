@@ -9,7 +9,10 @@ bounds still hold). Vehicles outside every control area follow the end-node rule
 
 :func:`observe_vehicles` lists the agents of a simulator's current state;
 :func:`vehicle_accelerations` asks a policy for their accelerations (one call per environment)
-and :func:`vehicle_commands` turns them into the simulator's per-slot command.
+and :func:`vehicle_commands` turns them into the simulator's per-slot command;
+:func:`follow` finds each agent again after a step and :func:`vehicle_rewards` is CoMADDPG's
+per-vehicle reward (one formula for its trainer and the PettingZoo view,
+:mod:`mivecc_env.vehicle_env`).
 """
 
 from __future__ import annotations
@@ -20,8 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import sections
-from mivecc_env.sim.core import Simulator
+from mivecc_env.sim.core import Simulator, StepEvents
 from mivecc_env.sim.state_graph import build_graphs, nearest_references
 
 FloatArray = NDArray[np.float64]
@@ -130,3 +134,35 @@ def vehicle_accelerations(policy: Callable[[NDArray[np.float32]], ArrayLike],
                 raise ValueError("policy returned NaN or inf accelerations")
             out[rows] = a
     return np.clip(out, -a_max, a_max)
+
+
+def follow(agents: VehicleAgents, nxt: VehicleAgents) -> tuple[NDArray[np.bool_], IntArray]:
+    """Where each agent of ``agents`` is among ``nxt`` (the same environment and vehicle id):
+    (n,) whether it is an agent again, and (n,) its index in ``nxt`` (0 where not)."""
+    key = agents.env * (1 << 32) + agents.vid
+    next_key = nxt.env * (1 << 32) + nxt.vid
+    found, j = np.zeros(len(agents), dtype=bool), np.zeros(len(agents), dtype=np.int64)
+    if next_key.size:
+        order = np.argsort(next_key, kind="stable")
+        cand = order[np.minimum(np.searchsorted(next_key[order], key), next_key.size - 1)]
+        found = next_key[cand] == key
+        j = np.where(found, cand, 0)
+    return found, j
+
+
+def vehicle_rewards(agents: VehicleAgents, action: FloatArray, nxt: VehicleAgents,
+                    events: StepEvents, config: MiVeCCConfig, collision_penalty: float,
+                    safety_weight: float) -> FloatArray:
+    """(n,) reward of each agent for the step from ``agents`` (accelerations ``action``
+    [m/s^2]) to ``nxt``: ``(v' - v_max) / (v_max - v_floor)`` (0 at full speed, -1 at the
+    floor; ``v'`` the velocity its action gives) ``+ safety_weight * min(SV', 0) / 20`` (its
+    safety value after the step, where it is still an agent) ``- collision_penalty`` if it
+    collided in the step."""
+    lo, hi = config.velocity_floor_mps, config.v_max_mps
+    v_new = np.clip(agents.velocity + action * config.dt_s, lo, hi)
+    reward = (v_new - hi) / (hi - lo)
+    reward -= collision_penalty * np.isin(agents.slot, events.collided_slot)
+    found, j = follow(agents, nxt)
+    if nxt.sv.size:
+        reward += np.where(found, safety_weight * np.minimum(nxt.sv[j], 0.0) / 20.0, 0.0)
+    return reward

@@ -1,0 +1,96 @@
+"""The vehicle-agent ParallelEnv (``mivecc_vehicles_v0``): PettingZoo's API test, agents that
+come and go, determinism, CoMADDPG's evaluation reproduced through it, and bad input."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from pettingzoo.test import parallel_api_test
+
+from mivecc_env import mivecc_vehicles_v0
+from mivecc_env.config import ConfigError
+
+
+def _env(**kw):
+    return mivecc_vehicles_v0.parallel_env(**{"rows": 1, "cols": 1, "density": 1500,
+                                              "max_steps": 400, **kw})
+
+
+def test_pettingzoo_parallel_api() -> None:
+    with warnings.catch_warnings():
+        # possible_agents bounds the vehicles of an episode; most never come
+        warnings.filterwarnings("ignore", message="No agents present but not all")
+        parallel_api_test(_env(rows=2, cols=2, density=900), num_cycles=500)
+
+
+def _rollout(env, seed: int, accel: float = 1.0) -> list[tuple]:
+    obs, _ = env.reset(seed=seed)
+    trace, live = [], set(env.agents)
+    assert env.agents and set(obs) == live  # the rules ran until a vehicle is in an area
+    while env.agents:
+        for agent in env.agents:
+            assert env.observation_space(agent).contains(obs[agent])
+        actions = {a: np.array([accel], np.float32) for a in env.agents}
+        obs, rewards, terminated, truncated, infos = env.step(actions)
+        assert set(rewards) == set(terminated) == set(truncated) == set(obs) == set(infos)
+        assert live <= set(obs)  # every agent that acted gets its last entries
+        ended = {a for a in live if terminated[a] or truncated[a]}
+        assert not ended & set(env.agents)  # an agent that ended does not come back
+        live = set(env.agents)
+        trace.append((tuple(sorted(rewards.items())), tuple(sorted(terminated.items()))))
+    return trace
+
+
+def test_agents_come_and_go_and_runs_repeat() -> None:
+    env = _env()
+    first = _rollout(env, 3)
+    assert any(any(t for _, t in step[1]) for step in first)  # vehicles left their area
+    assert first == _rollout(env, 3)
+    assert first != _rollout(env, 4)
+    summary = env.summary()
+    assert summary["throughput"] > 0
+
+
+def test_the_shipped_comaddpg_policy_runs_as_in_its_evaluation() -> None:
+    from mivecc_agents.comaddpg import SHIPPED_PATH, CoMADDPGPolicy
+    from mivecc_agents.evaluation import evaluate_scheme
+
+    policy = CoMADDPGPolicy.load(SHIPPED_PATH)
+    env = _env(max_steps=1000)
+    obs, _ = env.reset(seed=1)
+    while env.agents:
+        names = list(env.agents)
+        accel = policy(np.stack([obs[a] for a in names]))
+        obs, *_ = env.step({a: np.array([x], np.float32) for a, x in
+                            zip(names, np.clip(accel, -3.0, 3.0), strict=True)})
+    ref = evaluate_scheme("comaddpg", 1, 1, 1500, 1000, 1, progress=False,
+                          policies={"vehicle": policy})
+    for key in ("avg_travel_velocity_mps", "throughput", "collisions", "mean_speed_mps"):
+        assert env.summary()[key] == ref[key], key
+
+
+def test_bad_input_is_refused_with_the_field_or_agent_named() -> None:
+    for kw, message in (({"k": 1}, r"k: must be an integer in \[2, 64\]"),
+                        ({"render_mode": "human"}, "render_mode: mivecc_vehicles_v0 has none"),
+                        ({"safety_weight": -1.0}, "safety_weight: must be a finite number"),
+                        ({"control": "signalized"}, "control: vehicle agents need"),
+                        ({"model": "released"}, "model: vehicle agents need model='paper'"),
+                        ({"min_headway_s": 0.0}, "min_headway_s: must be > 0"),
+                        ({"density": -5}, "density")):
+        with pytest.raises(ConfigError, match=message):
+            _env(**kw)
+    env = _env()
+    with pytest.raises(RuntimeError, match="call reset"):
+        env.step({})
+    env.reset(seed=0)
+    agent = env.agents[0]
+    for actions, message in (({}, f"no action for live agent '{agent}'"),
+                             ({agent: [0.0], "vehicle_999": [0.0]}, "'vehicle_999' is not a live"),
+                             ({agent: [4.0]}, rf"actions\['{agent}'\]: must be one finite"),
+                             ({agent: [np.nan]}, "must be one finite"),
+                             ({agent: [0.0, 1.0]}, "must be one finite"),
+                             ([0.0], "actions: expected a dict")):
+        with pytest.raises(ValueError, match=message):
+            env.step(actions)
