@@ -4,6 +4,8 @@
 * :mod:`mivecc_env.batched` -- :class:`BatchedMiVeCCEnv`, B environments as numpy arrays;
 * :mod:`mivecc_env.mivecc_v0` -- ``parallel_env()`` / ``env()`` (PettingZoo);
 * :mod:`mivecc_env.mivecc_edges_v0` -- the edge-only view (homogeneous agents, no ``cloud_0``);
+* :mod:`mivecc_env.mivecc_vehicles_v0` -- the vehicles in the control areas as agents that come
+  and go (CoMADDPG's view; ``parallel_env()`` only, not in the registries);
 * ``pettingzoo.make("parallel" | "aec", "mivecc/mivecc-v0")`` (and ``mivecc/mivecc_edges-v0``)
   where the installed PettingZoo has a registry (1.27+; registered on import of this package);
 * ``gymnasium.make("mivecc/MiVeCCEdge-v0")`` -- a single-agent view: the edge node of one
