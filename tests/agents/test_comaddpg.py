@@ -229,3 +229,18 @@ def test_shipped_policy_reproduces_its_committed_comparison_run() -> None:
     for key in ("avg_travel_velocity_mps", "collisions", "throughput", "backlog"):
         assert run[key] == float(row[key]), key
     assert run["collisions"] == 1.0  # documented: collisions from 1500 veh/lane/h on
+
+
+def test_training_commands_keep_stdout_for_the_checkpoint_path(tmp_path) -> None:
+    # TorchRL logs a line when the replay buffer is made; it goes to stderr, not before the path
+    import subprocess
+    import sys
+
+    out = tmp_path / "run"
+    done = subprocess.run(
+        [sys.executable, "-c", "import sys; from mivecc_agents import cli; "
+         "sys.exit(cli.main(sys.argv[1:]))", "train-comaddpg", "--out", str(out),
+         "--episodes", "1", "--batch", "1", "--episode-steps", "60", "--warmup", "16",
+         "--minibatch", "8"], capture_output=True, text=True, timeout=300, check=True)
+    assert done.stdout == f"{out / 'comaddpg.pt'}\n"
+    assert "episode 1/1" in done.stderr
