@@ -101,8 +101,8 @@ TRAIN_COMMANDS = {
                        "train the CoMADDPG vehicle policy (learned unsignalized comparator)",
                        "Train CoMADDPG (every vehicle in a control area an agent: one shared "
                        "actor on its virtual-lane view, a centralised critic with its reference "
-                       "vehicles' actions, MADDPG) on the single intersection, or on a grid "
-                       "with --rows/--cols; docs/comparators.md.", "mivecc_agents.comaddpg"),
+                       "vehicles' actions, MADDPG) on 3x3, or on another grid with "
+                       "--rows/--cols; docs/comparators.md.", "mivecc_agents.comaddpg"),
 }
 
 

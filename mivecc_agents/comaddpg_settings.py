@@ -26,8 +26,8 @@ class CoMADDPGSettings:
     episode_steps: int = _opt(1000, "steps of 0.1 s per episode")
     densities: tuple[float, ...] = _opt((300.0, 600.0, 900.0, 1200.0, 1500.0, 1800.0, 2100.0),
                                         "demands [veh/lane/h], cycled over the environments")
-    rows: int = _opt(1, "intersection rows of the training grid")
-    cols: int = _opt(1, "intersection columns of the training grid")
+    rows: int = _opt(3, "intersection rows of the training grid")
+    cols: int = _opt(3, "intersection columns of the training grid")
     k: int = _opt(8, "rows of a vehicle's observation: itself and its k - 1 nearest reference "
                   "vehicles on its virtual lane")
     collision_penalty: float = _opt(20.0, "reward lost by a vehicle that collides (its last "

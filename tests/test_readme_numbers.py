@@ -1261,23 +1261,34 @@ def test_eec_vs_coder_is_the_committed_comparison() -> None:
 
 
 def test_comaddpg_paragraph_is_the_committed_comparison() -> None:
-    """README's CoMADDPG figures (1x1): its velocities at 300 and 2100, EEC's, the strict
-    events per density, and its place between EE and EEC, from the committed comparison."""
+    """README's CoMADDPG figures: its velocities and EEC's at 300 and 2100 on both grids, its
+    strict events (none on 1x1, 3 on 3x3; EEC 13) and its place above EEC everywhere, from
+    the committed comparison; the 1x1-trained policy's events from its kept runs."""
     import comparison
 
-    table = comparison.summarise(
-        list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
-                                   "comparison.csv"]).values()),
-        [(1, 1)], ["EE", "EEC", "comaddpg"], DENSITIES)
-    cell = {(t["scheme"], t["density"]): t for t in table}
-    v = {k: round(t["velocity_mean_mps"], 2) for k, t in cell.items()}
+    results = ROOT / "docs" / "results"
+    rows = list(comparison.load_rows([results / "comparison" / "comparison.csv"]).values())
     text = " ".join(RESULTS.split())
-    assert (f"({v['comaddpg', 300]:.2f} to {v['comaddpg', 2100]:.2f} m/s from 300 to 2100 "
-            f"veh/lane/h; EEC {v['EEC', 300]:.2f} to {v['EEC', 2100]:.2f})") in text
-    events = [cell["comaddpg", d]["collisions"] for d in DENSITIES]
-    assert events == [0, 0, 0, 0, 3, 2, 1]
-    assert "collision-free up to 1200 and with 3, 2, 1 strict events at 1500, 1800" in text
-    assert all(cell["EE", d]["collisions"] == cell["EEC", d]["collisions"] == 0
-               for d in (1500, 1800, 2100))
-    assert all(cell["EE", d]["velocity_mean_mps"] < cell["comaddpg", d]["velocity_mean_mps"]
-               < cell["EEC", d]["velocity_mean_mps"] for d in DENSITIES)
+    table = comparison.summarise(rows, [(1, 1), (3, 3)], ["EEC", "comaddpg"], DENSITIES)
+    cell = {(t["grid"], t["scheme"], t["density"]): t for t in table}
+
+    def v(grid: str, scheme: str, density: int) -> str:
+        return f"{cell[grid, scheme, density]['velocity_mean_mps']:.2f}"
+
+    assert (f"(1x1: {v('1x1', 'comaddpg', 300)} to {v('1x1', 'comaddpg', 2100)} m/s from 300 "
+            f"to 2100 veh/lane/h; EEC {v('1x1', 'EEC', 300)} to {v('1x1', 'EEC', 2100)}; 3x3: "
+            f"{v('3x3', 'comaddpg', 300)} to {v('3x3', 'comaddpg', 2100)}; EEC "
+            f"{v('3x3', 'EEC', 300)} to {v('3x3', 'EEC', 2100)})") in text
+    events = {g: sum(cell[g, "comaddpg", d]["collisions"] for d in DENSITIES) for g in ("1x1",
+                                                                                    "3x3")}
+    eec = sum(cell["3x3", "EEC", d]["collisions"] for d in DENSITIES)
+    assert (events["1x1"], events["3x3"], eec) == (0, 3, 13)
+    assert "collision-free on 1x1 and with 3 strict events over the 21 runs on 3x3 (EEC 13)" in text
+    assert all(cell[g, "comaddpg", d]["velocity_mean_mps"] > cell[g, "EEC", d]["velocity_mean_mps"]
+               for g in ("1x1", "3x3") for d in DENSITIES)
+    first = list(comparison.load_rows(
+        [results / "comaddpg" / "train_1x1" / "comparison_with_this_policy.csv"]).values())
+    events_first = [t["collisions"] for t in comparison.summarise(first, [(1, 1)], ["comaddpg"],
+                                                                   DENSITIES)]
+    assert events_first == [0, 0, 0, 0, 3, 2, 1]
+    assert "(3, 2, 1 events at 1500, 1800, 2100)" in text

@@ -228,7 +228,7 @@ def test_shipped_policy_reproduces_its_committed_comparison_run() -> None:
                           policies={"vehicle": CoMADDPGPolicy.load(SHIPPED_PATH)})
     for key in ("avg_travel_velocity_mps", "collisions", "throughput", "backlog"):
         assert run[key] == float(row[key]), key
-    assert run["collisions"] == 1.0  # documented: collisions from 1500 veh/lane/h on
+    assert run["collisions"] == 0.0  # documented: collision-free on 1x1
 
 
 def test_training_commands_keep_stdout_for_the_checkpoint_path(tmp_path) -> None:
