@@ -11,6 +11,7 @@ from typing import Any
 
 from mivecc_agents.signal_dqn_settings import _opt, check_densities, check_numbers, plain_dict
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
+from mivecc_env.vehicle_agents import VEHICLE_AGENT_FIELDS
 
 __all__ = ["CoMADDPGSettings"]
 
@@ -90,7 +91,6 @@ class CoMADDPGSettings:
 
 
 def vehicle_agent_fields() -> dict[str, Any]:
-    """The config fields under which vehicle agents act (``BatchedMiVeCCEnv.step_vehicles``):
-    unsignalized control, the vehicles' command carried as the edge action (scheme ``EE``), the
-    default model (the released one's overrides would replace the vehicles' actions)."""
-    return {"control": "unsignalized", "scheme": "EE", "safety_shield": False, "model": "paper"}
+    """A copy of :data:`mivecc_env.vehicle_agents.VEHICLE_AGENT_FIELDS`, the config fields under
+    which vehicle agents act."""
+    return dict(VEHICLE_AGENT_FIELDS)

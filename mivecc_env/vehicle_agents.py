@@ -31,6 +31,12 @@ from mivecc_env.sim.state_graph import build_graphs, nearest_references
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+#: The config fields under which vehicles are agents (``BatchedMiVeCCEnv.step_vehicles``):
+#: unsignalized control, the vehicles' command carried as the edge action (scheme ``EE``), no
+#: shield, the default model (the released one's overrides would replace the vehicles' actions).
+VEHICLE_AGENT_FIELDS: dict[str, object] = {"control": "unsignalized", "scheme": "EE",
+                                           "safety_shield": False, "model": "paper"}
+
 
 @dataclass(frozen=True)
 class VehicleAgents:

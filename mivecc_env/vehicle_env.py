@@ -42,6 +42,7 @@ from pettingzoo import ParallelEnv
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.config import ConfigError, from_overrides
 from mivecc_env.vehicle_agents import (
+    VEHICLE_AGENT_FIELDS,
     VehicleAgents,
     follow,
     observe_vehicles,
@@ -49,18 +50,14 @@ from mivecc_env.vehicle_agents import (
     vehicle_rewards,
 )
 
-#: The config fields under which vehicles are agents (``BatchedMiVeCCEnv.step_vehicles``).
-VEHICLE_FIELDS: dict[str, Any] = {"control": "unsignalized", "scheme": "EE",
-                                  "safety_shield": False, "model": "paper"}
-
 
 class MiVeCCVehiclesParallelEnv(ParallelEnv):
     """The vehicles inside the control areas as agents (module docstring).
 
     Raises:
         ConfigError: a bad config value or keyword, ``k`` < 2, a negative or non-finite reward
-            weight, a field of :data:`VEHICLE_FIELDS` set otherwise, ``min_headway_s = 0``, or
-            a ``render_mode``.
+            weight, a field of ``vehicle_agents.VEHICLE_AGENT_FIELDS`` set otherwise,
+            ``min_headway_s = 0``, or a ``render_mode``.
     """
 
     metadata = {"name": "mivecc_vehicles_v0", "render_modes": [], "is_parallelizable": True}
@@ -77,11 +74,11 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
             if isinstance(value, bool) or not isinstance(value, int | float) or not (
                     math.isfinite(value) and value >= 0):
                 raise ConfigError(f"{name}: must be a finite number >= 0, got {value!r}")
-        for name, value in VEHICLE_FIELDS.items():
+        for name, value in VEHICLE_AGENT_FIELDS.items():
             if overrides.get(name, value) != value:
                 raise ConfigError(f"{name}: vehicle agents need {name}={value!r}, "
                                   f"got {overrides[name]!r}")
-        self.config = c = from_overrides(None, **{**overrides, **VEHICLE_FIELDS})
+        self.config = c = from_overrides(None, **{**overrides, **VEHICLE_AGENT_FIELDS})
         if c.min_headway_s <= 0:
             raise ConfigError("min_headway_s: must be > 0 for mivecc_vehicles_v0 (it bounds "
                               f"the vehicles of an episode), got {c.min_headway_s}")
@@ -126,6 +123,8 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         agents = self._agents
         if agents is None:
             raise RuntimeError("step: call reset() first")
+        if not self.agents:
+            raise RuntimeError("step: the episode has ended (no agents); call reset()")
         names = self._names(agents)
         accel = self._accelerations(actions, names)
         self._env.step_vehicles(vehicle_commands(agents, accel, 1))

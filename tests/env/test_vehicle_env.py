@@ -81,8 +81,13 @@ def test_bad_input_is_refused_with_the_field_or_agent_named() -> None:
                         ({"density": -5}, "density")):
         with pytest.raises(ConfigError, match=message):
             _env(**kw)
-    env = _env()
+    env = _env(max_steps=120)
     with pytest.raises(RuntimeError, match="call reset"):
+        env.step({})
+    env.reset(seed=0)
+    while env.agents:
+        env.step({a: [0.0] for a in env.agents})
+    with pytest.raises(RuntimeError, match="the episode has ended"):
         env.step({})
     env.reset(seed=0)
     agent = env.agents[0]
