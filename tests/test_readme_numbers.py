@@ -1292,3 +1292,27 @@ def test_comaddpg_paragraph_is_the_committed_comparison() -> None:
                                                                    DENSITIES)]
     assert events_first == [0, 0, 0, 0, 3, 2, 1]
     assert "(3, 2, 1 events at 1500, 1800, 2100)" in text
+
+
+def test_headroom_outside_the_fusion_is_the_committed_runs() -> None:
+    """README's "Headroom outside the fusion": CoMADDPG's and EEC's gains over E on 3x3 from
+    the comparison, their share of the paper's EEC vs E, and the EEC+3 ceiling's range."""
+    import comparison
+    import paper_table
+
+    rows = list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
+                                      "comparison.csv"]).values())
+    text = " ".join(RESULTS.split())
+    mine = [comparison.gain(rows, (3, 3), d, "comaddpg", "E") for d in DENSITIES]
+    assert ("gain " + " / ".join(f"{g:+.2f}" for g in mine) + " % over MiVeCC-E") in text
+    paper = [paper_table.PAPER_3X3["EEC vs E"][d] for d in DENSITIES]
+    shares = [round(100 * round(g, 2) / p) for g, p in zip(mine, paper, strict=True)]
+    assert f"{min(shares)}-{max(shares)} % of the paper's EEC vs E" in text
+    eec = [comparison.gain(rows, (3, 3), d, "EEC", "E") for d in DENSITIES]
+    assert f"MiVeCC-EEC gains {eec[0]:+.2f} ... {eec[-1]:+.2f} %" in text
+    cells = paper_table.cell_runs(paper_table.read_runs_csv(
+        ROOT / "docs" / "results" / "paper_table" / "paper_table.csv"), "3x3")
+    ceiling = [100 * (np.mean([x["avg_travel_velocity_mps"] for x in cells["EEC+3", d]])
+                      / np.mean([x["avg_travel_velocity_mps"] for x in cells["E", d]]) - 1)
+               for d in DENSITIES]
+    assert f"(EEC+3) {min(ceiling):+.2f} ... {max(ceiling):+.2f} %" in text
