@@ -8,7 +8,9 @@ Schemes: ``E`` (end-node rules only), ``EE`` (rules + edge coordinators), ``EEC`
 + cloud coordinators) and the comparators of :data:`COMPARATORS` (``fixed-time``, ``actuated``,
 ``max-pressure`` signals with IDM car-following, ``reservation`` (AIM FCFS), ``optimisation``
 (DOOC-style), ``pa-dqn`` and ``coder`` (signal agents with a learned policy,
-``policies["signal"]``); ``signalized`` is the earlier name of ``fixed-time``). The
+``policies["signal"]``), ``comaddpg`` (the vehicles in the control areas act with a learned
+policy, ``policies["vehicle"]``, executed without the rules); ``signalized`` is the earlier
+name of ``fixed-time``). The
 coordinators' actions come from ``policies``: a mapping ``"edge"`` / ``"cloud"`` -> callable
 ``policy(obs_batch, mask) -> actions`` with ``obs_batch`` of shape ``(n_agents, K, K, 3)``,
 ``mask`` ``(n_agents, K)`` and ``actions`` ``(n_agents, K)`` in ``[-a_max, a_max]`` m/s^2
@@ -319,8 +321,8 @@ def evaluate_scheme(
     Args:
         scheme: one of :data:`SCHEMES`: ``"E"``, ``"EE"``, ``"EEC"``, ``"fixed-time"``,
             ``"actuated"``, ``"max-pressure"``, ``"reservation"``, ``"optimisation"``,
-            ``"pa-dqn"``, ``"coder"`` (``"signalized"`` = ``"fixed-time"``). All run on the
-            same seeded demand.
+            ``"pa-dqn"``, ``"coder"``, ``"comaddpg"`` (``"signalized"`` = ``"fixed-time"``).
+            All run on the same seeded demand.
         rows: intersection rows of the grid.
         cols: intersection columns of the grid.
         density: arrival rate per entry lane [veh/lane/h].
@@ -331,7 +333,11 @@ def evaluate_scheme(
             ``"signal"``: the learned signal policy of ``pa-dqn`` or ``coder`` (required
             there; a :class:`mivecc_agents.signal_dqn.SignalDQNPolicy`, a
             :class:`mivecc_agents.coder.CoderPolicy` or any callable ``(n, 15)
-            observations -> (n,)`` phases with a ``decision_period_s``).
+            observations -> (n,)`` phases with a ``decision_period_s``). ``"vehicle"``: the
+            vehicles' policy of ``comaddpg`` (required there; a
+            :class:`mivecc_agents.comaddpg.CoMADDPGPolicy` or any callable ``(n, k, 3)
+            observations -> (n,)`` accelerations with an integer ``k``); run through
+            :func:`evaluate_batch` (``step_hook`` is not available there).
         progress: show a tqdm progress bar on stderr.
         warn: print the zero-coordinator-action warning to stderr when it applies.
         step_hook: called as ``step_hook(env, t)`` after the reset (``t = 0``) and after every
@@ -455,7 +461,8 @@ def evaluate_batch(
             (B, n_edge, K) edge and (B, K) cloud actions [m/s^2] (``None`` where the scheme
             has none; NaN cloud rows for the environments whose cloud does not decide on
             this step, ``cloud_period`` > 1: their policy is not called) and the step's
-            result (rewards, next observations).
+            result (rewards, next observations); ``comaddpg``: ``edge`` and ``cloud`` are
+            None.
         stack_policies: ``False`` (default): one call per environment, so no environment's
             trajectory depends on the batch; ``True``: one call on all environments where
             :func:`stacking_is_exact` says that is exact (faster; rare one-ulp differences on
