@@ -122,3 +122,36 @@ def test_step_vehicles_refuses_bad_input() -> None:
         vehicle_accelerations(lambda obs: np.full(len(obs), np.nan), agents, 1, 3.0)
     with pytest.raises(ValueError, match="policy returned shape"):
         vehicle_accelerations(lambda obs: np.zeros(len(obs) + 1), agents, 1, 3.0)
+
+
+@pytest.mark.parametrize(("rows", "cols", "densities"),
+                         [(1, 1, (600.0, 2100.0, 1500.0)), (2, 3, (900.0, 1800.0, 300.0))])
+def test_a_batch_of_vehicle_agent_runs_equals_its_single_runs(rows, cols, densities) -> None:
+    """Environment b of a batch stepped by vehicle agents = the B = 1 run of its seed and
+    demand, bit for bit (an elementwise policy of each agent's own observation)."""
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return 3.0 * np.tanh(5.0 * (obs[:, 0, 0].astype(np.float64) + obs[:, 1, 0]))
+
+    def make(b_densities, seeds):
+        env = BatchedMiVeCCEnv(batch_size=len(seeds), rows=rows, cols=cols,
+                               densities=list(b_densities), observe=(), **vehicle_agent_fields())
+        env.reset(seed=list(seeds))
+        return env
+
+    seeds = (5, 6, 7)
+    batch = make(densities, seeds)
+    singles = [make([d], [s]) for d, s in zip(densities, seeds, strict=True)]
+    for _ in range(400):
+        for env in (batch, *singles):
+            agents = observe_vehicles(env.sim, 8)
+            accel = vehicle_accelerations(policy, agents, env.batch_size, 3.0)
+            env.step_vehicles(vehicle_commands(agents, accel, env.batch_size))
+    collided = 0
+    for b, single in enumerate(singles):
+        for key, value in single.summary().items():
+            assert np.array_equal(batch.summary()[key][b], value[0], equal_nan=True), key
+        mine, theirs = batch.sim.vehicle_table(b), single.sim.vehicle_table(0)
+        for key in ("vid", "lane", "s", "v"):
+            np.testing.assert_array_equal(mine[key], theirs[key])
+        collided += int(single.summary()["collisions"][0])
+    assert collided > 0  # the policy is no safe one: collisions are part of what must match
