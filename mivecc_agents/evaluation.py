@@ -94,7 +94,8 @@ RESULT_KEYS: tuple[str, ...] = (
 
 #: Config fields reported with every result (the readings of ambiguous parts of the paper).
 CONFIG_READINGS: tuple[str, ...] = (
-    "model", "control", "signal_controller", "comparator_entry", "end_rule", "same_lane_rule",
+    "model", "control", "signal_controller", "comparator_entry", "signal_keep_clear",
+    "end_rule", "same_lane_rule",
     "edge_sv_gate", "sv_acc_source", "omega", "cloud_pick_population", "cloud_graphs",
     "cloud_period", "safety_shield",
 )

@@ -346,6 +346,15 @@ class MiVeCCConfig:
         "DOOC-style arrival-time MILP per intersection (both v in [0, v_max], "
         "docs/comparators.md)",
     )
+    signal_keep_clear: bool = _choice(
+        False, (False, True),
+        "signalized: a vehicle stops at a green or yellow stop line (if it can, at "
+        "idm_comfort_decel) unless its lane has room for it past the intersection box even if "
+        "its leader stopped now at idm_comfort_decel (the leader's rear then at least "
+        "idm_min_gap + vehicle_length past the box exit); conservative: it also holds a queue's "
+        "discharge back (12-27 % less throughput at 2100 veh/lane/h, docs/comparators.md); "
+        "default off: the published signal runs",
+    )
     comparator_entry: ComparatorEntry = _choice(
         "stop_clearance", ("stop_clearance", "slowed"),
         "how a queued vehicle enters under the comparators (control other than unsignalized): "

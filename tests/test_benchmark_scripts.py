@@ -21,6 +21,7 @@ import comparison
 import critic_check
 import edge_reward_check
 import headroom_search
+import keep_clear
 import machine_info
 import near_miss_cost
 import paper_table
@@ -566,3 +567,17 @@ def test_stacking_audit_of_the_cloud_counts_its_decision_steps(tmp_path: Path) -
     assert (report["kind"], report["environment_steps"]) == ("cloud", 6)
     assert report["policy"] == "mivecc_agents/pretrained/released/cloud.pt"
     assert isinstance(report["random_graph_check_says_exact"], bool)
+
+
+def test_keep_clear_pairs_every_signal_scheme(tmp_path: Path) -> None:
+    text = keep_clear.main(["--grids", "1x1", "--densities", "1500", "--seeds", "0",
+                            "--steps", "300", "--workers", "1", "--out", str(tmp_path)])
+    with open(tmp_path / "keep_clear.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    # Coder needs a 2x2 grid: four schemes on 1x1, each with the rule off and on
+    assert sorted((r["scheme"], r["signal_keep_clear"]) for r in rows) == sorted(
+        (s, rule) for s in ("fixed-time", "actuated", "max-pressure", "pa-dqn")
+        for rule in ("False", "True"))
+    assert "| 1500 | 0 -> 0 / " in text and "coder" not in text
+    assert (tmp_path / "keep_clear.md").read_text().startswith(
+        "Written by `python benchmarks/keep_clear.py --grids 1x1")

@@ -90,6 +90,12 @@ def signalized_accel(
     dist = line - s
     can_stop = dist >= v * v / (2.0 * c.idm_comfort_decel_mps2)
     stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
+    if c.signal_keep_clear:  # do not enter a box the vehicle may not leave
+        box_exit = line + 2.0 * stop_line_offset_m(c)  # the stop line mirrored past the centre
+        # the leader's rear where it would stand after a comfortable stop, past the box exit
+        reach = v_leader * v_leader / (2.0 * c.idm_comfort_decel_mps2)
+        room = np.where(leader >= 0, gap_leader + s + reach, np.inf) - box_exit
+        stop |= has_stop & (room < c.idm_min_gap_m + length) & can_stop
     a_line = idm_accel(v, np.where(stop, dist, np.inf), np.zeros_like(v), c)
     a = np.minimum(a, np.where(stop, a_line, np.inf))
     return np.clip(a, -c.idm_max_decel_mps2, c.a_max_mps2)
