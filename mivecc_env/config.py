@@ -352,7 +352,7 @@ class MiVeCCConfig:
         "idm_comfort_decel) unless its lane has room for it past the intersection box even if "
         "its leader stopped now at idm_comfort_decel (the leader's rear then at least "
         "idm_min_gap + vehicle_length past the box exit); conservative: it also holds a queue's "
-        "discharge back (12-27 % less throughput at 2100 veh/lane/h, docs/comparators.md); "
+        "discharge back (12-28 % less throughput at 2100 veh/lane/h, docs/comparators.md); "
         "default off: the published signal runs",
     )
     comparator_entry: ComparatorEntry = _choice(
