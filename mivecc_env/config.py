@@ -349,11 +349,10 @@ class MiVeCCConfig:
     signal_keep_clear: bool = _choice(
         False, (False, True),
         "signalized: a vehicle stops at a green or yellow stop line (if it can, at "
-        "idm_comfort_decel) unless its lane has room for it past the intersection box even if "
-        "its leader stopped now at idm_comfort_decel (the leader's rear then at least "
-        "idm_min_gap + vehicle_length past the box exit); conservative: it also holds a queue's "
-        "discharge back (12-28 % less throughput at 2100 veh/lane/h, docs/comparators.md); "
-        "default off: the published signal runs",
+        "idm_comfort_decel) while the queue past the box on its lane (the first vehicle "
+        "slower than 1 m/s past its stop line among the 12 ahead) leaves no room for it and "
+        "the vehicles before it, each vehicle_length + idm_min_gap, so no vehicle waits "
+        "inside the box (docs/comparators.md); default off: the published signal runs",
     )
     comparator_entry: ComparatorEntry = _choice(
         "stop_clearance", ("stop_clearance", "slowed"),

@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     from mivecc_env.sim.virtual_lane import VirtualLaneView
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 GREEN, YELLOW, RED = 0, 1, 2
 
@@ -91,14 +92,45 @@ def signalized_accel(
     can_stop = dist >= v * v / (2.0 * c.idm_comfort_decel_mps2)
     stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
     if c.signal_keep_clear:  # do not enter a box the vehicle may not leave
-        box_exit = line + 2.0 * stop_line_offset_m(c)  # the stop line mirrored past the centre
-        # the leader's rear where it would stand after a comfortable stop, past the box exit
-        reach = v_leader * v_leader / (2.0 * c.idm_comfort_decel_mps2)
-        room = np.where(leader >= 0, gap_leader + s + reach, np.inf) - box_exit
-        stop |= has_stop & (room < c.idm_min_gap_m + length) & can_stop
+        stop |= has_stop & can_stop & _box_blocked(s, v, leader, line, c)
     a_line = idm_accel(v, np.where(stop, dist, np.inf), np.zeros_like(v), c)
     a = np.minimum(a, np.where(stop, a_line, np.inf))
     return np.clip(a, -c.idm_max_decel_mps2, c.a_max_mps2)
+
+
+#: ``signal_keep_clear``: a vehicle slower than this [m/s] past its stop line stands in a queue.
+QUEUED_MPS = 1.0
+#: ... looked for this many vehicles ahead on the lane.
+QUEUE_LOOKAHEAD = 12
+
+
+def _box_blocked(s: FloatArray, v: FloatArray, leader: IntArray, line: FloatArray,
+                 c: MiVeCCConfig) -> NDArray[np.bool_]:
+    """Whether each vehicle's lane lacks room for it past the box ahead (``signal_keep_clear``).
+
+    Along the vehicles ahead on its lane (up to :data:`QUEUE_LOOKAHEAD`), the first one past the
+    vehicle's stop line that is slower than :data:`QUEUED_MPS` is the tail of a queue (one still
+    before the line is discharging at this light and does not count). The vehicles before that
+    tail will stop behind it; the lane is blocked when the room between the box exit (the stop
+    line mirrored past the centre) and the tail's rear cannot take them and this vehicle, each
+    ``vehicle_length_m + idm_min_gap_m``.
+    """
+    length, slot = c.vehicle_length_m, c.vehicle_length_m + c.idm_min_gap_m
+    box_exit = line + 2.0 * stop_line_offset_m(c)
+    n = s.size
+    ahead = leader.copy()
+    between = np.zeros(n, dtype=np.int64)
+    tail_rear = np.full(n, np.inf)
+    open_ = np.ones(n, dtype=bool)
+    for _ in range(QUEUE_LOOKAHEAD):
+        valid = open_ & (ahead >= 0)
+        k = np.maximum(ahead, 0)
+        queued = valid & (s[k] >= line) & (v[k] < QUEUED_MPS)
+        tail_rear = np.where(queued, s[k] - length, tail_rear)
+        between += valid & ~queued
+        open_ = valid & ~queued
+        ahead = np.where(open_, leader[k], -1)
+    return tail_rear - box_exit < (between + 1) * slot
 
 
 def entry_clearance_m(config: MiVeCCConfig) -> float:
