@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim import sections
 from mivecc_env.sim.core import Simulator, StepEvents
-from mivecc_env.sim.state_graph import build_graphs, nearest_references
+from mivecc_env.sim.state_graph import build_graphs
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -95,16 +95,18 @@ def observe_vehicles(sim: Simulator, k: int) -> VehicleAgents:
     centre = net.lane_centres_s[lane, which]
     flat = view.vehicle
     velocity = sim.v.ravel()[flat]
-    # one graph per agent whose column 0 is the agent: rows are its view of the virtual lane
+    # the agents packed k to a graph, one per column: column j of a graph is an agent's view
+    n_graphs = max(-(-d // k), 1)
+    refs = np.empty((d, k - 1), dtype=np.int64)
     graphs = build_graphs(net, view, velocity, sim.a.ravel()[flat], decision,
-                          np.arange(d), np.zeros(d, dtype=np.int64), max(d, 1), 1, k,
-                          2.0 * c.control_radius_m, c, centre, c.control_radius_m)
-    obs = np.ascontiguousarray(graphs.obs[0, :d, :, 0, :])
-    ref, _ = nearest_references(view, decision, k - 1, centre, c.control_radius_m)
+                          np.arange(d) // k, np.arange(d) % k, n_graphs, 1, k,
+                          2.0 * c.control_radius_m, c, centre, c.control_radius_m,
+                          references=refs)
+    # (agent, row, channel); the reshape of the transposed graphs makes a contiguous copy
+    obs = graphs.obs[0].transpose(0, 2, 1, 3).reshape(n_graphs * k, k, 3)[:d]
     agent_of_view = np.full(view.env.size + 1, -1, dtype=np.int64)
     agent_of_view[decision] = np.arange(d)
-    ref_agent = np.full((d, k - 1), -1, dtype=np.int64)
-    ref_agent[:, : ref.shape[1]] = agent_of_view[ref]  # -1 (padding) reads the spare entry
+    ref_agent = agent_of_view[refs]  # -1 (padding) reads the spare entry
     return VehicleAgents(
         obs=obs, env=view.env[decision].astype(np.int64), slot=flat[decision].astype(np.int64),
         vid=sim.vid.ravel()[flat[decision]].astype(np.int64), ref_agent=ref_agent,

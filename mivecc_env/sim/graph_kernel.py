@@ -55,7 +55,7 @@ def _channels(velocity, accel, v_lo, v_mul, a_mul):  # pragma: no cover - compil
 
 
 @njit
-def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, view_lane,
+def _build(cells, mask, slot, view_index, refs, k, decision, node, column, view_s, view_lane,
            view_vehicle, own_point, run_start, run_end, point_pos, point_vehicle, velocity,
            accel, v_lo, v_mul, a_mul, lane_cp_s, lane_length, use_area, centre, n_area,
            lane_intersections, lane_centres_s, radius, inv_scale):  # pragma: no cover - compiled
@@ -68,10 +68,14 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
     b_dist = np.empty(k + 1, np.float64)  # (+ a sentinel)
     a_idx = np.empty(k + 1, np.int64)
     a_dist = np.empty(k + 1, np.float64)
+    want_refs = refs.shape[0] > 0
     for i in range(decision.shape[0]):
         d = decision[i]
         s = view_s[d]
         lane = view_lane[d]
+        if want_refs:
+            for r in range(k - 1):
+                refs[i * (k - 1) + r] = -1
         c = 0.0
         if use_area:
             if n_area > 0:  # the centre of area node % n_area on the lane (_area_centres)
@@ -153,13 +157,15 @@ def _build(cells, mask, slot, view_index, k, decision, node, column, view_s, vie
         ib = 0
         ia = 0
         cell = head + k
-        for _ in range(min(k - 1, nb + na)):
+        for r in range(min(k - 1, nb + na)):
             take_b = np.int64(b_dist[U(ib)] <= a_dist[U(ia)])
             qa = a_idx[U(ia)]
             q = qa + take_b * (b_idx[U(ib)] - qa)
             ib += take_b
             ia += 1 - take_b
             veh = point_vehicle[U(q)]
+            if want_refs:
+                refs[i * (k - 1) + r] = veh
             uc = U(cell)
             cells[uc, 0] = _channel((point_pos[U(q)] - s) * inv_scale)
             cells[uc, 1] = va[U(veh), 0]
@@ -184,7 +190,7 @@ def build(
     decision: np.ndarray, node: np.ndarray, column: np.ndarray, view, velocity: np.ndarray,
     accel: np.ndarray, v_lo: float, v_mul: float, a_mul: float, lane_cp_s: np.ndarray,
     lane_length: np.ndarray, centre: np.ndarray | tuple | None, radius: float,
-    inv_scale: float,
+    inv_scale: float, refs: np.ndarray | None = None,
 ) -> None:
     """Fill every decision's column of the state graphs (all rows) and its mask entries.
 
@@ -206,6 +212,8 @@ def build(
             lane_centres_s)``: the area is intersection ``node % n_area``, its centre looked
             up on the decision's lane in the kernel (as :func:`area_centres` does).
         inv_scale: 1 / position scale [1/m].
+        refs: optional (D * (K-1),) int64 output: the view index of each decision's reference
+            rows, nearest first, -1 for padding (decision ``i``'s at ``i * (K-1) + row - 1``).
     """
     use_area = centre is not None
     n_area, inter, centres = 0, _NO_INT2, _NO_FLOAT2
@@ -215,7 +223,8 @@ def build(
         n_area = int(n_area)
     elif use_area:
         c = centre
-    _build(cells, mask, slot, view_index, k, decision, node, column, view.s, view.lane,
+    _build(cells, mask, slot, view_index, _NO_INT if refs is None else refs, k, decision, node,
+           column, view.s, view.lane,
            view.vehicle, view.own_point, view.point_run_start, view.point_run_end,
            view.point_pos, view.point_vehicle, velocity, accel, float(v_lo), float(v_mul),
            float(a_mul), lane_cp_s, lane_length, use_area, c, n_area, inter, centres,
@@ -223,6 +232,7 @@ def build(
 
 
 _NO_FLOAT = np.zeros(0)
+_NO_INT = np.zeros(0, dtype=np.int64)
 _NO_FLOAT2 = np.zeros((0, 0))
 _NO_INT2 = np.zeros((0, 0), dtype=np.int64)
 

@@ -194,6 +194,7 @@ def build_graphs(
     area_centre_s: FloatArray | None = None,
     area_radius_m: float = np.inf,
     use_kernel: bool | None = None,
+    references: IntArray | None = None,
 ) -> StateGraphs:
     """Fill the K x K x 3 graphs of the given decisions.
 
@@ -208,6 +209,8 @@ def build_graphs(
         use_kernel: fill the graphs with the compiled kernel
             (:func:`mivecc_env.sim.graph_kernel.build`, bit-identical) or the numpy path;
             default: the kernel when numba is available.
+        references: optional (len(decision), K-1) int64 output, filled with the view index of
+            each decision's reference rows, nearest first, -1 for padding.
     """
     shape = (batch, n_nodes, k)
     v_lo = config.velocity_floor_mps
@@ -227,7 +230,8 @@ def build_graphs(
         graph_kernel.build(obs.reshape(-1, 3), mask.reshape(-1), slot.reshape(-1),
                            view_index.reshape(-1), k, decision, node, column, view, velocity,
                            accel, v_lo, v_mul, a_mul, network.lane_cp_s, network.lane_length,
-                           centre, area_radius_m, inv_scale)
+                           centre, area_radius_m, inv_scale,
+                           None if references is None else references.reshape(-1))
         return StateGraphs(obs, mask, slot, view_index)
     obs = np.zeros((*shape, k, 3), dtype=np.float32)
     mask = np.zeros(shape, dtype=np.float32)
@@ -237,6 +241,8 @@ def build_graphs(
     def finish() -> StateGraphs:
         return StateGraphs(obs, mask, slot, view_index)
 
+    if references is not None:
+        references[:] = -1
     if decision.size == 0:
         return finish()
     if area_centre_s is _CENTRE_OF_NODE:
@@ -259,6 +265,8 @@ def build_graphs(
 
     ref, rel = nearest_references(view, decision, k - 1, area_centre_s, area_radius_m)
     n_ref = ref.shape[1]
+    if references is not None:
+        references[:, :n_ref] = ref
     real = ref >= 0
     ref_vehicle = np.where(real, ref, n_veh)
     block = np.empty((decision.size, n_ref, 3), dtype=np.float32)

@@ -155,3 +155,25 @@ def test_a_batch_of_vehicle_agent_runs_equals_its_single_runs(rows, cols, densit
             np.testing.assert_array_equal(mine[key], theirs[key])
         collided += int(single.summary()["collisions"][0])
     assert collided > 0  # the policy is no safe one: collisions are part of what must match
+
+
+def test_the_graphs_name_each_reference_row_alike_on_both_paths() -> None:
+    from mivecc_env.sim import graph_kernel
+    from mivecc_env.sim.state_graph import build_graphs
+
+    if not graph_kernel.HAVE_NUMBA:
+        pytest.skip("needs numba for the compiled path")
+    sim = _env().sim
+    c, net, view = sim.config, sim.network, sim.view
+    decision = np.arange(0, view.env.size, 3)
+    v, a = sim.v.ravel()[view.vehicle], sim.a.ravel()[view.vehicle]
+    out = {}
+    for kernel in (True, False):
+        refs = np.full((decision.size, 39), 99, dtype=np.int64)  # more rows than neighbours
+        g = build_graphs(net, view, v, a, decision, np.arange(decision.size),
+                         np.zeros(decision.size, dtype=np.int64), decision.size, 1, 40, 150.0,
+                         c, use_kernel=kernel, references=refs)
+        out[kernel] = (g.obs, refs)
+    np.testing.assert_array_equal(out[True][0], out[False][0])
+    np.testing.assert_array_equal(out[True][1], out[False][1])
+    assert (out[True][1] >= 0).sum() > 100 and (out[True][1] == -1).any()
