@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from mivecc_agents.evaluation import COMPARATORS, LEARNED_SIGNAL_SCHEMES, VEHICLE_AGENT_SCHEMES
+from mivecc_agents.evaluation import COMPARATORS
 from mivecc_env import cli_args
 
 SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "pa-dqn", "coder",
@@ -73,22 +73,15 @@ def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per episode
-    from mivecc_agents.evaluation import evaluate_scheme
+    from mivecc_agents.evaluation import evaluate_scheme, shipped_comparator_policies
 
     scheme, rows, cols, density, steps, seed, entry = job
-    policies = {}
     if scheme in ("EE", "EEC"):
         from mivecc_agents.policies import pretrained_policies
 
         policies = pretrained_policies()
-    elif scheme in LEARNED_SIGNAL_SCHEMES:
-        from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
-
-        policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
-    elif scheme in VEHICLE_AGENT_SCHEMES:
-        from mivecc_agents.comaddpg import SHIPPED_PATH, CoMADDPGPolicy
-
-        policies = {"vehicle": CoMADDPGPolicy.load(SHIPPED_PATH)}
+    else:
+        policies = shipped_comparator_policies(scheme, rows, cols)
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
                           progress=False, warn=False, comparator_entry=entry)
     out["source"] = "simulated"

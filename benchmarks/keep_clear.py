@@ -37,14 +37,10 @@ def _run(job: tuple[str, int, int, float, int, int, bool]) -> dict[str, Any]:
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
-    from mivecc_agents.evaluation import LEARNED_SIGNAL_SCHEMES, evaluate_scheme
+    from mivecc_agents.evaluation import evaluate_scheme, shipped_comparator_policies
 
     scheme, rows, cols, density, steps, seed, keep_clear = job
-    policies = {}
-    if scheme in LEARNED_SIGNAL_SCHEMES:
-        from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
-
-        policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
+    policies = shipped_comparator_policies(scheme, rows, cols)
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
                           progress=False, warn=False, signal_keep_clear=keep_clear)
     return {key: out.get(key, keep_clear) for key in KEYS}

@@ -94,9 +94,9 @@ def _run(job: tuple[str, int, int, list[float], int, list[int], str | None, str 
                                    safety_shield=config.safety_shield)
     run_scheme = scheme
     if scheme == "coder":  # the shipped Coder policy of the grid (signal agents)
-        from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
+        from mivecc_agents.evaluation import shipped_comparator_policies
 
-        policies = {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
+        policies = shipped_comparator_policies(scheme, rows, cols)
     if scheme in CEILINGS:
         run_scheme, kind = CEILINGS[scheme]
         policies[kind] = ceiling_policy(kind, config)

@@ -121,6 +121,21 @@ def scheme_overrides(scheme: str, config_overrides: dict[str, Any]) -> dict[str,
     return overrides
 
 
+def shipped_comparator_policies(scheme: str, rows: int, cols: int) -> dict[str, Any]:
+    """The shipped learned policy a comparator runs with: ``{"signal": ...}`` for ``pa-dqn``
+    and ``coder`` (the grid's, :mod:`mivecc_agents.signal_policy_files`), ``{"vehicle": ...}``
+    for ``comaddpg``, ``{}`` for every other scheme."""
+    if scheme in LEARNED_SIGNAL_SCHEMES:
+        from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
+
+        return {"signal": load_signal_policy(shipped_signal_policy_path(scheme, rows, cols))}
+    if scheme in VEHICLE_AGENT_SCHEMES:
+        from mivecc_agents.comaddpg import SHIPPED_PATH, CoMADDPGPolicy
+
+        return {"vehicle": CoMADDPGPolicy.load(SHIPPED_PATH)}
+    return {}
+
+
 def _needed_policies(scheme: str) -> tuple[str, ...]:
     """Coordinator kinds whose actions a scheme uses."""
     return {"EE": ("edge",), "EEC": ("edge", "cloud")}.get(scheme, ())
