@@ -5,9 +5,10 @@
 * :mod:`mivecc_env.mivecc_v0` -- ``parallel_env()`` / ``env()`` (PettingZoo);
 * :mod:`mivecc_env.mivecc_edges_v0` -- the edge-only view (homogeneous agents, no ``cloud_0``);
 * :mod:`mivecc_env.mivecc_vehicles_v0` -- the vehicles in the control areas as agents that come
-  and go (CoMADDPG's view; ``parallel_env()`` only, not in the registries);
-* ``pettingzoo.make("parallel" | "aec", "mivecc/mivecc-v0")`` (and ``mivecc/mivecc_edges-v0``)
-  where the installed PettingZoo has a registry (1.27+; registered on import of this package);
+  and go (CoMADDPG's view);
+* ``pettingzoo.make("parallel" | "aec", "mivecc/mivecc-v0")`` (and ``mivecc/mivecc_edges-v0``,
+  ``mivecc/mivecc_vehicles-v0``) where the installed PettingZoo has a registry (1.27+;
+  registered on import of this package);
 * ``gymnasium.make("mivecc/MiVeCCEdge-v0")`` -- a single-agent view: the edge node of one
   intersection (registered on import of this package).
 """
@@ -55,7 +56,7 @@ def register_gymnasium() -> None:
 
 
 def register_pettingzoo() -> bool:
-    """Register ``mivecc/mivecc-v0`` and ``mivecc/mivecc_edges-v0`` with PettingZoo's registry.
+    """Register the PettingZoo envs (:data:`PETTINGZOO_IDS`) with PettingZoo's registry.
 
     Idempotent. PettingZoo releases before 1.27 have no registry: nothing is registered there and
     this returns ``False`` (the module-level ``parallel_env()`` / ``env()`` work everywhere).
@@ -77,6 +78,7 @@ def register_pettingzoo() -> bool:
 PETTINGZOO_IDS = {
     "mivecc/mivecc-v0": "mivecc_env.mivecc_v0",
     "mivecc/mivecc_edges-v0": "mivecc_env.mivecc_edges_v0",
+    "mivecc/mivecc_vehicles-v0": "mivecc_env.mivecc_vehicles_v0",
 }
 
 register_gymnasium()

@@ -21,6 +21,21 @@ __all__ = ["ActionCheckingAEC", "checked_aec"]
 class ActionCheckingAEC(parallel_to_aec_wrapper):
     """``parallel_to_aec_wrapper`` whose ``step`` checks the action before taking the turn."""
 
+    def reset(self, seed: int | None = None, options: dict | None = None) -> None:
+        """PettingZoo's reset; an episode that ends inside the parallel env's ``reset`` (no
+        agent ever acts: the vehicle env when no vehicle reaches a control area within
+        ``max_steps``) leaves ``agents`` empty and ``agent_selection`` None, so
+        ``agent_iter()`` yields nothing, where the conversion itself would fail."""
+        try:
+            super().reset(seed=seed, options=options)
+        except Exception:
+            if self.env.agents:
+                raise
+            self.agent_selection = None
+            for name in ("terminations", "truncations", "rewards", "_cumulative_rewards"):
+                setattr(self, name, {})
+            self.infos, self.new_agents, self.new_values = {}, [], {}
+
     def step(self, action: Any) -> None:
         agent = self.agent_selection
         if action is not None and not (self.terminations[agent] or self.truncations[agent]):

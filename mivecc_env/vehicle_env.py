@@ -175,6 +175,15 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
             self._env.step_commands(None, None)
             self._agents = self._observe()
 
+    def check_action(self, agent: str, action: Any) -> None:
+        """Raise what :meth:`step` would raise for ``action`` as ``agent``'s (a ``ValueError``
+        naming the agent); nothing if it is valid. The AEC env
+        (:func:`mivecc_env.mivecc_vehicles_v0.env`) checks each action with it when it is given.
+        """
+        if agent not in self.agents:
+            raise ValueError(f"actions: {agent!r} is not a live agent")
+        self._checked_acceleration(agent, action)
+
     def _accelerations(self, actions: dict[str, Any], names: list[str]) -> np.ndarray:
         """(n,) accelerations [m/s^2] of the live agents, in agent order, checked."""
         if not isinstance(actions, dict):
@@ -183,18 +192,24 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         unknown = sorted(set(actions) - set(names))
         if unknown:
             raise ValueError(f"actions: {unknown[0]!r} is not a live agent")
+        missing = [name for name in names if name not in actions]
+        if missing:
+            raise ValueError(f"actions: no action for live agent {missing[0]!r}")
+        return np.array([self._checked_acceleration(name, actions[name]) for name in names])
+
+    def _checked_acceleration(self, name: str, action: Any) -> float:
+        """``action`` as one acceleration [m/s^2], or a ``ValueError`` naming the agent and the
+        box (a value past the box's edge by float32 rounding only is put on the edge)."""
         a_max = self.config.a_max_mps2
-        out = np.empty(len(names))
-        for i, name in enumerate(names):
-            if name not in actions:
-                raise ValueError(f"actions: no action for live agent {name!r}")
-            value = np.asarray(actions[name], dtype=np.float64)
-            if value.shape not in ((), (1,)) or not np.isfinite(value).all() or (
-                    abs(float(value.reshape(-1)[0])) > a_max + 1e-6):
-                raise ValueError(f"actions[{name!r}]: must be one finite acceleration in "
-                                 f"[-{a_max}, {a_max}] m/s^2 (shape (1,)), got {actions[name]!r}")
-            out[i] = float(value.reshape(-1)[0])
-        return np.clip(out, -a_max, a_max)  # (float32 rounding of the box's edge only)
+        try:
+            value = np.asarray(action, dtype=np.float64)
+        except (TypeError, ValueError):
+            value = np.full(2, np.nan)  # not a number: refused below, naming the agent
+        if value.shape not in ((), (1,)) or not np.isfinite(value).all() or (
+                abs(float(value.reshape(-1)[0])) > a_max + 1e-6):
+            raise ValueError(f"actions[{name!r}]: must be one finite acceleration in "
+                             f"[-{a_max}, {a_max}] m/s^2 (shape (1,)), got {action!r}")
+        return float(np.clip(value.reshape(-1)[0], -a_max, a_max))
 
     def _names(self, agents: VehicleAgents) -> list[str]:
         return [f"vehicle_{v}" for v in agents.vid.tolist()]

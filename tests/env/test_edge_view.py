@@ -94,6 +94,10 @@ def test_registered_with_pettingzoo() -> None:
         aec = pettingzoo.make("aec", env_id, rows=1, cols=1)
         assert isinstance(aec, pettingzoo.AECEnv)
         assert aec.possible_agents == par.possible_agents[:1] + par.possible_agents[2:]
+    par = pettingzoo.make("parallel", "mivecc/mivecc_vehicles-v0", rows=1, cols=2, k=4)
+    assert type(par).__name__ == "MiVeCCVehiclesParallelEnv" and par.k == 4
+    aec = pettingzoo.make("aec", "mivecc/mivecc_vehicles-v0", rows=1, cols=1)
+    assert isinstance(aec, pettingzoo.AECEnv) and aec.possible_agents[0] == "vehicle_0"
     assert mivecc_env.register_pettingzoo() is True  # idempotent: no override warning
 
 
@@ -104,6 +108,7 @@ def test_env_side_imports_no_torch() -> None:
 
     code = (
         "import sys, mivecc_env, mivecc_env.mivecc_v0, mivecc_env.mivecc_edges_v0, "
+        "mivecc_env.mivecc_vehicles_v0, "
         "mivecc_env.single_agent, mivecc_env.render\n"
         "top = {m.split('.')[0] for m in sys.modules}\n"
         "bad = sorted(top & {'torch', 'torchrl', 'tensordict'})\n"

@@ -1,5 +1,6 @@
-"""The vehicle-agent ParallelEnv (``mivecc_vehicles_v0``): PettingZoo's API test, agents that
-come and go, determinism, CoMADDPG's evaluation reproduced through it, and bad input."""
+"""The vehicle-agent envs (``mivecc_vehicles_v0``): PettingZoo's API tests (parallel and AEC),
+agents that come and go, determinism, CoMADDPG's evaluation reproduced through both, and bad
+input."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import warnings
 
 import numpy as np
 import pytest
-from pettingzoo.test import parallel_api_test
+from pettingzoo.test import api_test, parallel_api_test
 
 from mivecc_env import mivecc_vehicles_v0
 from mivecc_env.config import ConfigError
@@ -23,6 +24,23 @@ def test_pettingzoo_parallel_api() -> None:
         # possible_agents bounds the vehicles of an episode; most never come
         warnings.filterwarnings("ignore", message="No agents present but not all")
         parallel_api_test(_env(rows=2, cols=2, density=900), num_cycles=500)
+
+
+def test_pettingzoo_aec_api() -> None:
+    for density, max_steps in ((300, 300), (2100, 150)):
+        api_test(mivecc_vehicles_v0.env(rows=2, cols=2, density=density, max_steps=max_steps),
+                 num_cycles=1000)
+
+
+def test_aec_episode_without_any_agent_ends_at_reset() -> None:
+    par = mivecc_vehicles_v0.parallel_env(rows=2, cols=2, density=300, max_steps=100)
+    par.reset(seed=0)  # no vehicle reaches a control area within 100 steps
+    assert par.agents == []
+    env = mivecc_vehicles_v0.env(rows=2, cols=2, density=300, max_steps=100)
+    env.reset(seed=0)
+    assert env.agents == [] and list(env.agent_iter()) == []
+    env.reset(seed=1)  # and the next episode runs
+    assert env.agents == ["vehicle_0"]
 
 
 def _rollout(env, seed: int, accel: float = 1.0) -> list[tuple]:
@@ -69,6 +87,39 @@ def test_the_shipped_comaddpg_policy_runs_as_in_its_evaluation() -> None:
                           policies={"vehicle": policy})
     for key in ("avg_travel_velocity_mps", "throughput", "collisions", "mean_speed_mps"):
         assert env.summary()[key] == ref[key], key
+
+
+def test_aec_env_runs_the_parallel_trajectory() -> None:
+    # Every live vehicle acts once per cycle; those that join act from the next cycle.
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return np.array([np.tanh(4 * obs[1, 0] - obs[0, 1]) * 3.0], np.float32)
+
+    kw = {"rows": 2, "cols": 2, "density": 1500, "max_steps": 300}
+    par = mivecc_vehicles_v0.parallel_env(**kw)
+    obs, _ = par.reset(seed=2)
+    expected = [(a, 0.0) for a in par.agents]  # the AEC env shows 0 at the first turn
+    while par.agents:
+        obs, rewards, *_ = par.step({a: policy(obs[a]) for a in par.agents})
+        expected += rewards.items()
+    aec = mivecc_vehicles_v0.env(**kw)
+    aec.reset(seed=2)
+    shown = []
+    for agent in aec.agent_iter():
+        obs_a, reward, terminated, truncated, _ = aec.last()
+        shown.append((agent, reward))
+        aec.step(None if terminated or truncated else policy(obs_a))
+    assert aec.unwrapped.summary() == par.summary()
+    assert len(expected) > 1000 and sorted(shown) == sorted(expected)
+
+
+def test_aec_env_checks_an_action_when_it_is_given() -> None:
+    env = mivecc_vehicles_v0.env(rows=1, cols=1, density=1500, max_steps=200)
+    env.reset(seed=0)
+    agent = env.agent_selection
+    for bad in ([4.0], [np.nan], [0.0, 1.0], "fast"):
+        with pytest.raises(ValueError, match=rf"actions\['{agent}'\]: must be one finite"):
+            env.step(bad)
+        assert env.agent_selection == agent  # the turn is not taken
 
 
 def test_bad_input_is_refused_with_the_field_or_agent_named() -> None:
