@@ -144,6 +144,10 @@ def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
                            help=f"{f.metadata['help']} (default "
                            f"{' '.join(f'{d:g}' for d in f.default)})")
             continue
+        if f.metadata.get("choices"):
+            p.add_argument(option, choices=f.metadata["choices"], default=f.default,
+                           help=f"{f.metadata['help']} (default {f.default})")
+            continue
         kind = int if isinstance(f.default, int) else float
         p.add_argument(option, type=kind, default=f.default,
                        help=f"{f.metadata['help']} (default {f.default})")

@@ -16,7 +16,8 @@ follows (the rest is this package's reading, ``docs/comparators.md``):
   veto: ``BatchedMiVeCCEnv.step_vehicles``).
 * **learning** (MADDPG "redefined to adapt to the dynamic quantity of agents"): one actor shared
   by all vehicles; a centralised critic per vehicle that sees its observation, its action and
-  the actions of its reference vehicles (the agents of its partial environment), with MADDPG's
+  the actions of its reference vehicles (the agents of its partial environment; with
+  ``critic_view="observations"`` their observations too, as MADDPG's critic), with MADDPG's
   actor update (the other agents' actions from the replay buffer). TorchRL's ``DDPGLoss`` with
   the reference vehicles' actions as extra critic inputs: at the next state they are the target
   actor's actions for the next state's references, computed when the transition is stored.
@@ -100,20 +101,27 @@ class VehicleActor(nn.Module):
 
 class VehicleCritic(nn.Module):
     """Q-value ``(..., 1)`` of a vehicle's observation ``(..., k, 3)``, its action ``(..., 1)``
-    and its references' actions and mask ``(..., k - 1)`` (padding rows: action 0, mask 0)."""
+    and its references' actions and mask ``(..., k - 1)`` (padding rows: action 0, mask 0);
+    with ``observations`` also the references' own observations ``(..., k - 1, k, 3)``
+    (padding rows: zeros)."""
 
-    def __init__(self, k: int, hidden: int, a_max: float) -> None:
+    def __init__(self, k: int, hidden: int, a_max: float, observations: bool = False) -> None:
         super().__init__()
         self.a_scale = 1.0 / float(a_max)
-        self.net = nn.Sequential(nn.Linear(3 * k + 1 + 2 * (k - 1), hidden), nn.ReLU(),
+        self.observations = bool(observations)
+        width = 3 * k + 1 + 2 * (k - 1) + (3 * k * (k - 1) if observations else 0)
+        self.net = nn.Sequential(nn.Linear(width, hidden), nn.ReLU(),
                                  nn.Linear(hidden, hidden // 2), nn.ReLU(),
                                  nn.Linear(hidden // 2, 1))
 
     def forward(self, observation: torch.Tensor, action: torch.Tensor,
-                neighbour_action: torch.Tensor, neighbour_mask: torch.Tensor) -> torch.Tensor:
-        x = torch.cat([vehicle_features(observation), action * self.a_scale,
-                       neighbour_action * self.a_scale, neighbour_mask], dim=-1)
-        return self.net(x)
+                neighbour_action: torch.Tensor, neighbour_mask: torch.Tensor,
+                neighbour_observation: torch.Tensor | None = None) -> torch.Tensor:
+        parts = [vehicle_features(observation), action * self.a_scale,
+                 neighbour_action * self.a_scale, neighbour_mask]
+        if self.observations:
+            parts.append(vehicle_features(neighbour_observation).flatten(-2))
+        return self.net(torch.cat(parts, dim=-1))
 
 
 class CoMADDPGPolicy:
@@ -181,6 +189,8 @@ class _Batch:
     next_neighbour_action: np.ndarray
     next_neighbour_mask: np.ndarray
     terminated: np.ndarray
+    neighbour_obs: np.ndarray | None = None  # with critic_view "observations"
+    next_neighbour_obs: np.ndarray | None = None
 
 
 def neighbour_actions(agents: VehicleAgents, action: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -188,6 +198,12 @@ def neighbour_actions(agents: VehicleAgents, action: np.ndarray) -> tuple[np.nda
     mask = agents.ref_agent >= 0
     padded = np.append(action, 0.0)  # index -1 reads the 0
     return padded[agents.ref_agent].astype(np.float32), mask.astype(np.float32)
+
+
+def neighbour_observations(agents: VehicleAgents) -> np.ndarray:
+    """(n, k-1, k, 3) observations of each agent's reference rows (zeros for padding)."""
+    padded = np.concatenate([agents.obs, np.zeros((1, *agents.obs.shape[1:]), np.float32)])
+    return padded[agents.ref_agent]  # index -1 reads the zeros
 
 
 def transitions(agents: VehicleAgents, action: np.ndarray, nxt: VehicleAgents,
@@ -211,11 +227,18 @@ def transitions(agents: VehicleAgents, action: np.ndarray, nxt: VehicleAgents,
         nb_all, mask_all = neighbour_actions(nxt, next_target_action)
         next_obs[found], next_nb[found], next_mask[found] = (
             nxt.obs[j[found]], nb_all[j[found]], mask_all[j[found]])
+    nb_obs = next_nb_obs = None
+    if settings.critic_view == "observations":
+        nb_obs = neighbour_observations(agents)
+        next_nb_obs = np.zeros_like(nb_obs)
+        if len(nxt):
+            next_nb_obs[found] = neighbour_observations(nxt)[j[found]]
     return _Batch(
         obs=agents.obs, action=action.astype(np.float32)[:, None],
         neighbour_action=nb_action, neighbour_mask=nb_mask,
         reward=reward.astype(np.float32)[:, None], next_obs=next_obs,
         next_neighbour_action=next_nb, next_neighbour_mask=next_mask, terminated=~found,
+        neighbour_obs=nb_obs, next_neighbour_obs=next_nb_obs,
     )
 
 
@@ -230,11 +253,13 @@ class VehicleLearner:
 
         k = settings.k
         self.actor = VehicleActor(k, settings.hidden, a_max)
-        self.critic = VehicleCritic(k, settings.critic_hidden, a_max)
+        with_obs = settings.critic_view == "observations"
+        self.critic = VehicleCritic(k, settings.critic_hidden, a_max, observations=with_obs)
         actor = TensorDictModule(self.actor, in_keys=["observation"], out_keys=["action"])
         critic = TensorDictModule(
-            self.critic, in_keys=["observation", "action", "neighbour_action",
-                                  "neighbour_mask"], out_keys=["state_action_value"])
+            self.critic, in_keys=["observation", "action", "neighbour_action", "neighbour_mask",
+                                  *(["neighbour_observation"] if with_obs else [])],
+            out_keys=["state_action_value"])
         self.loss = DDPGLoss(actor, critic, delay_actor=True, delay_value=True)
         self.loss.make_value_estimator(ValueEstimators.TD0, gamma=settings.gamma)
         self.target = SoftUpdate(self.loss, tau=settings.tau)
@@ -267,17 +292,17 @@ class VehicleLearner:
             return
         t = torch.from_numpy
         term = t(batch.terminated)[:, None]
-        self.buffer.extend(TensorDict({
-            "observation": t(batch.obs), "action": t(batch.action),
-            "neighbour_action": t(batch.neighbour_action),
-            "neighbour_mask": t(batch.neighbour_mask),
-            "next": TensorDict({
-                "observation": t(batch.next_obs),
-                "neighbour_action": t(batch.next_neighbour_action),
-                "neighbour_mask": t(batch.next_neighbour_mask),
-                "reward": t(batch.reward), "done": term, "terminated": term.clone(),
-            }, [n]),
-        }, [n]))
+        now = {"observation": t(batch.obs), "action": t(batch.action),
+               "neighbour_action": t(batch.neighbour_action),
+               "neighbour_mask": t(batch.neighbour_mask)}
+        nxt = {"observation": t(batch.next_obs),
+               "neighbour_action": t(batch.next_neighbour_action),
+               "neighbour_mask": t(batch.next_neighbour_mask),
+               "reward": t(batch.reward), "done": term, "terminated": term.clone()}
+        if batch.neighbour_obs is not None:
+            now["neighbour_observation"] = t(batch.neighbour_obs)
+            nxt["neighbour_observation"] = t(batch.next_neighbour_obs)
+        self.buffer.extend(TensorDict({**now, "next": TensorDict(nxt, [n])}, [n]))
 
     def update(self) -> tuple[float, float] | None:
         """``updates_per_step`` gradient steps (after the warm-up): mean critic and actor loss."""

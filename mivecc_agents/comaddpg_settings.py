@@ -9,7 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from mivecc_agents.signal_dqn_settings import _opt, check_densities, check_numbers, plain_dict
+from mivecc_agents.signal_dqn_settings import (
+    _opt,
+    check_choices,
+    check_densities,
+    check_numbers,
+    plain_dict,
+)
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.vehicle_agents import VEHICLE_AGENT_FIELDS
 
@@ -38,6 +44,10 @@ class CoMADDPGSettings:
     gamma: float = _opt(0.99, "discount per step of 0.1 s")
     lr_actor: float = _opt(3e-4, "Adam learning rate of the actor")
     lr_critic: float = _opt(1e-3, "Adam learning rate of the critic")
+    critic_view: str = _opt("actions", "what the centralised critic sees besides the vehicle's "
+                            "observation and action: its references' actions (actions) or "
+                            "their actions and observations (observations)",
+                            ("actions", "observations"))
     hidden: int = _opt(64, "units of each of the actor's two hidden layers")
     critic_hidden: int = _opt(128, "units of the critic's first hidden layer (the second has "
                               "half)")
@@ -71,6 +81,7 @@ class CoMADDPGSettings:
                   "noise_start": (0.0, 100.0, False), "noise_end": (0.0, 100.0, False),
                   "noise_decay_fraction": (0.0, 1.0, True)}
         check_numbers(self, ints, floats)
+        check_choices(self)
         check_densities(self.densities)
         self.env_config()
         return self

@@ -15,12 +15,24 @@ import numpy as np
 
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 
-__all__ = ["SignalDQNSettings", "check_densities", "check_numbers", "decision_steps", "plain_dict"]
+__all__ = ["SignalDQNSettings", "check_choices", "check_densities", "check_numbers",
+           "decision_steps", "plain_dict"]
 
 
-def _opt(default: Any, help_text: str) -> Any:
-    """A settings field with its help text (``field.metadata["help"]``)."""
-    return field(default=default, metadata={"help": help_text})
+def _opt(default: Any, help_text: str, choices: tuple[str, ...] = ()) -> Any:
+    """A settings field with its help text (``field.metadata["help"]``) and, for a text
+    field, its allowed values (``field.metadata["choices"]``)."""
+    return field(default=default, metadata={"help": help_text, "choices": choices})
+
+
+def check_choices(settings: Any) -> None:
+    """Raise :class:`ConfigError` naming the first text field of ``settings`` whose value is
+    not one of its ``choices``."""
+    for f in dataclasses.fields(settings):
+        allowed = f.metadata.get("choices")
+        if allowed and getattr(settings, f.name) not in allowed:
+            raise ConfigError(f"{f.name}: must be one of {', '.join(allowed)}, got "
+                              f"{getattr(settings, f.name)!r}")
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ import ceiling_resolution
 import cloud_critic_check
 import cloud_pick_counts
 import cloud_reward_check
+import comaddpg_policies
 import comparison
 import critic_check
 import edge_reward_check
@@ -581,3 +582,33 @@ def test_keep_clear_pairs_every_signal_scheme(tmp_path: Path) -> None:
     assert "| 1500 | 0 -> 0 / " in text and "coder" not in text
     assert (tmp_path / "keep_clear.md").read_text().startswith(
         "Written by `python benchmarks/keep_clear.py --grids 1x1")
+
+
+def test_comaddpg_policies_puts_policies_beside_mivecc(tmp_path: Path) -> None:
+    from mivecc_agents.comaddpg import SHIPPED_PATH
+
+    args = ["--grids", "1x1", "--densities", "900", "--seeds", "0", "--steps", "3000",
+            "--out", str(tmp_path)]
+    text = comaddpg_policies.main(["--policies", f"a={SHIPPED_PATH}", f"b={SHIPPED_PATH}",
+                                   *args])
+    with open(tmp_path / "comaddpg_policies.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["policy"] for r in rows] == ["a", "b"]
+    assert rows[0]["avg_travel_velocity_mps"] == rows[1]["avg_travel_velocity_mps"]
+    # the shipped policy's committed comparison run, and MiVeCC-EEC's beside it
+    with open(Path(comparison.__file__).parents[1] / "docs/results/comparison/comparison.csv",
+              newline="", encoding="utf-8") as fh:
+        committed = {r["scheme"]: r for r in csv.DictReader(fh) if (
+            r["rows"], float(r["density"]), r["seed"]) == ("1", 900.0, "0")}
+    assert float(rows[0]["avg_travel_velocity_mps"]) == float(
+        committed["comaddpg"]["avg_travel_velocity_mps"])
+    eec = float(committed["EEC"]["avg_travel_velocity_mps"])
+    assert "| density [veh/lane/h] | a | b | MiVeCC-EEC |" in text
+    assert f" | {eec:.3f} / 0 |" in text
+    # runs of another length have no reference column
+    short = comaddpg_policies.main(["--policies", f"a={SHIPPED_PATH}", *args[:-4],
+                                    "--steps", "50", "--out", str(tmp_path)])
+    assert "MiVeCC-EEC" not in short
+    with pytest.raises(ConfigError, match="--policies"):
+        comaddpg_policies.main(["--policies", f"a={SHIPPED_PATH}", f"a={SHIPPED_PATH}",
+                                *args])

@@ -1316,3 +1316,95 @@ def test_headroom_outside_the_fusion_is_the_committed_runs() -> None:
                       / np.mean([x["avg_travel_velocity_mps"] for x in cells["E", d]]) - 1)
                for d in DENSITIES]
     assert f"(EEC+3) {min(ceiling):+.2f} ... {max(ceiling):+.2f} %" in text
+
+
+def _comaddpg_seed_runs() -> tuple[dict, dict]:
+    """Mean velocity and summed strict events per (policy, grid, density) of the committed
+    training-seed runs, and MiVeCC-EEC's and E's mean velocity per (grid, density)."""
+    import csv
+
+    import comparison
+
+    folder = ROOT / "docs" / "results" / "comaddpg" / "training_seeds"
+    with open(folder / "comaddpg_policies.csv", newline="", encoding="utf-8") as fh:
+        runs = list(csv.DictReader(fh))
+    cell: dict = {}
+    for r in runs:
+        key = (r["policy"], f"{r['rows']}x{r['cols']}", int(r["density"]))
+        v, e = cell.get(key, ([], 0))
+        cell[key] = ([*v, float(r["avg_travel_velocity_mps"])], e + float(r["collisions"]))
+    cell = {k: (float(np.mean(v)), int(e)) for k, (v, e) in cell.items()}
+    rows = list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
+                                      "comparison.csv"]).values())
+    table = comparison.summarise(rows, [(1, 1), (3, 3)], ["E", "EEC"], DENSITIES)
+    ref = {(t["scheme"], t["grid"], t["density"]): t["velocity_mean_mps"] for t in table}
+    return cell, ref
+
+
+def test_comaddpg_training_seeds_and_fuller_critic_are_the_committed_runs() -> None:
+    """README and docs/comparators.md on CoMADDPG's training seeds and the observations critic:
+    who is above MiVeCC-EEC where, the strict events, the gains over E, the training logs'
+    last ten episodes; and the shipped policy's runs equal the committed comparison's."""
+    import comparison
+
+    cell, ref = _comaddpg_seed_runs()
+    text = " ".join(RESULTS.split())
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+
+    def above(policy: str, grid: str) -> list[bool]:
+        return [cell[policy, grid, d][0] > ref["EEC", grid, d] for d in DENSITIES]
+
+    def events(policy: str, grid: str) -> int:
+        return sum(cell[policy, grid, d][1] for d in DENSITIES)
+
+    rows = list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
+                                      "comparison.csv"]).values())
+    shipped = {(t["grid"], t["density"]): t for t in comparison.summarise(
+        rows, [(1, 1), (3, 3)], ["comaddpg"], DENSITIES)}
+    for (grid, d), t in shipped.items():
+        assert cell["actions_seed0", grid, d] == (t["velocity_mean_mps"], t["collisions"])
+    assert all(above("actions_seed0", "1x1") + above("actions_seed0", "3x3"))
+    assert not any(above("actions_seed1", "1x1"))
+    assert above("actions_seed1", "3x3") == [False] * 5 + [True] * 2
+    assert (events("actions_seed1", "1x1"), events("actions_seed1", "3x3")) == (0, 1)
+    assert above("actions_seed2", "1x1") == [True, True] + [False] * 5
+    assert all(above("actions_seed2", "3x3"))
+    assert (events("actions_seed2", "3x3"), cell["actions_seed2", "3x3", 2100][1],
+            events("actions_seed2", "1x1")) == (58, 31, 6)
+    assert "with `--seed 2` it has 58 strict events on 3x3 (31 at 2100 veh/lane/h)" in text
+    obs = [f"observations_seed{s}" for s in range(3)]
+    assert all(all(above(p, "3x3")) for p in obs)
+    assert [events(p, "3x3") for p in obs] == [39, 67, 24]
+    assert [events(p, "1x1") for p in obs] == [3, 5, 3]
+    assert "39, 67 and 24 strict events over the 21 runs (seeds 0, 1, 2)" in docs
+    assert "with 24-67 strict events there" in text
+    seed1 = [cell["actions_seed1", "1x1", d][0] - ref["EEC", "1x1", d] for d in DENSITIES]
+    assert f"({max(seed1):.3f} to {min(seed1):.3f} m/s)" in docs
+    fastest = [cell["observations_seed1", "3x3", d][0] - ref["EEC", "3x3", d] for d in DENSITIES]
+    assert f"(seed 1: {fastest[0]:+.3f} to {fastest[-1]:+.3f} m/s" in docs
+
+    def gains(policy: str) -> str:
+        g = [100 * (cell[policy, "3x3", d][0] / ref["E", "3x3", d] - 1) for d in DENSITIES]
+        return f"{g[0]:+.2f} ... {g[-1]:+.2f} %"
+
+    assert f"seed 1: {gains('actions_seed1')}; seed 2: {gains('actions_seed2')}" in text
+    assert f"gains {gains('observations_seed1')}, above the paper's EEC vs E from" in text
+    g = [100 * (cell["observations_seed1", "3x3", d][0] / ref["E", "3x3", d] - 1)
+         for d in DENSITIES]
+    paper = PAPER_3X3["EEC vs E"]
+    assert [round(x, 2) > paper[d] for x, d in zip(g, DENSITIES, strict=True)] == [
+        False] * 3 + [True] * 4
+
+    def last_ten(folder: Path) -> str:
+        import csv
+
+        with open(folder / "train_log.csv", newline="", encoding="utf-8") as fh:
+            counts = [int(float(r["collisions"])) for r in list(csv.DictReader(fh))[-10:]]
+        return f"{min(counts)}-{max(counts)}"
+
+    base = ROOT / "docs" / "results" / "comaddpg"
+    obs_ten = [last_ten(base / "training_seeds" / p) for p in obs]
+    act_ten = [last_ten(base / "train_3x3"), *(last_ten(base / "training_seeds" /
+                                                        f"actions_seed{s}") for s in (1, 2))]
+    assert (f"are {obs_ten[0]}, {obs_ten[1]} and {obs_ten[2]}, against {act_ten[0]}, "
+            f"{act_ten[1]} and {act_ten[2]} with the shipped critic") in docs

@@ -18,6 +18,7 @@ from mivecc_agents.comaddpg import (
     VehicleActor,
     VehicleLearner,
     neighbour_actions,
+    neighbour_observations,
     train_comaddpg,
     transitions,
 )
@@ -113,10 +114,42 @@ def test_the_critic_reads_the_reference_vehicles_actions() -> None:
     assert np.all(np.abs(mu) <= 3.0)
 
 
+def test_the_observations_critic_reads_the_references_observations() -> None:
+    env = _filled_env()
+    settings = CoMADDPGSettings(critic_view="observations")
+    agents = observe_vehicles(env.sim, settings.k)
+    nb_obs = neighbour_observations(agents)
+    assert nb_obs.shape == (len(agents), settings.k - 1, settings.k, 3)
+    has = agents.ref_agent >= 0
+    assert has.any() and (~has).any()
+    np.testing.assert_array_equal(nb_obs[has], agents.obs[agents.ref_agent[has]])
+    assert not nb_obs[~has].any()
+    # the transitions carry them, now and (for vehicles that go on) at the next state
+    action = np.zeros(len(agents))
+    env.step_vehicles(vehicle_commands(agents, action, 1))
+    nxt = observe_vehicles(env.sim, settings.k)
+    batch = transitions(agents, action, nxt, np.zeros(len(nxt)), env.sim.last_events,
+                        env.config, settings)
+    np.testing.assert_array_equal(batch.neighbour_obs, nb_obs)
+    assert batch.next_neighbour_obs.shape == nb_obs.shape
+    assert not batch.next_neighbour_obs[batch.terminated].any()
+    assert transitions(agents, action, nxt, np.zeros(len(nxt)), env.sim.last_events,
+                       env.config, CoMADDPGSettings()).neighbour_obs is None
+    torch.manual_seed(0)
+    learner = VehicleLearner(settings, 3.0)
+    obs = torch.from_numpy(agents.obs[:5])
+    args = (obs, torch.zeros(5, 1), torch.zeros(5, 7), torch.ones(5, 7))
+    q0 = learner.critic(*args, torch.zeros(5, 7, 8, 3))
+    q1 = learner.critic(*args, torch.from_numpy(nb_obs[:5]))
+    assert not torch.allclose(q0, q1)
+
+
 def test_settings_errors_name_the_field() -> None:
     for kw, message in (({"k": 1}, r"k: must be an integer in \[2, 64\]"),
                         ({"gamma": 1.5}, r"gamma: must be a number in \[0.0, 1.0\]"),
                         ({"noise_hold_steps": 0}, "noise_hold_steps: must be an integer"),
+                        ({"critic_view": "all"},
+                         "critic_view: must be one of actions, observations, got 'all'"),
                         ({"densities": ()}, "densities: must be one or more numbers"),
                         ({"config": {"scheme": "E"}}, "config: scheme is set by the training"),
                         ({"config": {"model": "released"}}, "config: model is set by the"),
@@ -137,6 +170,17 @@ def test_training_is_deterministic_and_leaves_torch_rng_alone(tiny_run) -> None:
         assert torch.equal(a, b)
     assert [r["reward_per_transition"] for r in log] == [r["reward_per_transition"]
                                                           for r in log2]
+
+
+def test_training_with_the_observations_critic_is_deterministic() -> None:
+    settings = CoMADDPGSettings(episodes=1, batch=2, episode_steps=150, warmup=64,
+                                minibatch=32, densities=(1500.0,), critic_view="observations")
+    (first, log), (again, _) = train_comaddpg(settings), train_comaddpg(settings)
+    assert np.isfinite(log[0]["critic_loss"])
+    for a, b in zip(first.actor.state_dict().values(), again.actor.state_dict().values(),
+                    strict=True):
+        assert torch.equal(a, b)
+    assert first.settings["critic_view"] == "observations"
 
 
 def test_checkpoints_round_trip_and_refuse_foreign_files(tiny_run, tmp_path) -> None:
@@ -211,7 +255,9 @@ def test_command_line(tmp_path, capsys) -> None:
 
 def test_shipped_policy_is_the_documented_run() -> None:
     shipped = CoMADDPGPolicy.load(SHIPPED_PATH)
-    assert shipped.settings == CoMADDPGSettings().to_dict()  # `mivecc train-comaddpg --out DIR`
+    # `mivecc train-comaddpg --out DIR`; trained before critic_view existed (its critic read
+    # the references' actions: the default)
+    assert {"critic_view": "actions", **shipped.settings} == CoMADDPGSettings().to_dict()
     assert shipped.k == CoMADDPGSettings().k
     assert isinstance(shipped.actor, VehicleActor)
 
