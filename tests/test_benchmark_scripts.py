@@ -17,12 +17,12 @@ import ceiling_resolution
 import cloud_critic_check
 import cloud_pick_counts
 import cloud_reward_check
-import comaddpg_policies
 import comparison
 import critic_check
 import edge_reward_check
 import headroom_search
 import keep_clear
+import learned_policies
 import machine_info
 import near_miss_cost
 import paper_table
@@ -584,14 +584,13 @@ def test_keep_clear_pairs_every_signal_scheme(tmp_path: Path) -> None:
         "Written by `python benchmarks/keep_clear.py --grids 1x1")
 
 
-def test_comaddpg_policies_puts_policies_beside_mivecc(tmp_path: Path) -> None:
+def test_learned_policies_puts_policies_beside_the_committed_runs(tmp_path: Path) -> None:
     from mivecc_agents.comaddpg import SHIPPED_PATH
 
     args = ["--grids", "1x1", "--densities", "900", "--seeds", "0", "--steps", "3000",
             "--out", str(tmp_path)]
-    text = comaddpg_policies.main(["--policies", f"a={SHIPPED_PATH}", f"b={SHIPPED_PATH}",
-                                   *args])
-    with open(tmp_path / "comaddpg_policies.csv", newline="", encoding="utf-8") as fh:
+    text = learned_policies.main(["--policies", f"a={SHIPPED_PATH}", "b=shipped", *args])
+    with open(tmp_path / "learned_policies.csv", newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["policy"] for r in rows] == ["a", "b"]
     assert rows[0]["avg_travel_velocity_mps"] == rows[1]["avg_travel_velocity_mps"]
@@ -606,9 +605,16 @@ def test_comaddpg_policies_puts_policies_beside_mivecc(tmp_path: Path) -> None:
     assert "| density [veh/lane/h] | a | b | MiVeCC-EEC |" in text
     assert f" | {eec:.3f} / 0 |" in text
     # runs of another length have no reference column
-    short = comaddpg_policies.main(["--policies", f"a={SHIPPED_PATH}", *args[:-4],
-                                    "--steps", "50", "--out", str(tmp_path)])
+    short = learned_policies.main(["--policies", f"a={SHIPPED_PATH}", *args[:-4],
+                                   "--steps", "50", "--out", str(tmp_path)])
     assert "MiVeCC-EEC" not in short
-    with pytest.raises(ConfigError, match="--policies"):
-        comaddpg_policies.main(["--policies", f"a={SHIPPED_PATH}", f"a={SHIPPED_PATH}",
-                                *args])
+    # a signal comparator: its shipped policy of the grid, the committed runs beside it
+    text = learned_policies.main(["--scheme", "pa-dqn", "--reference-schemes", "pa-dqn",
+                                  *args])
+    pa = float(committed["pa-dqn"]["avg_travel_velocity_mps"])
+    assert f"| 900 | {pa:.3f} / 0 | {pa:.3f} / 0 |" in text
+    for bad, message in ((["--policies", f"a={SHIPPED_PATH}", f"a={SHIPPED_PATH}"],
+                          "--policies"),
+                         (["--scheme", "coder"], "--grids: scheme coder runs on none")):
+        with pytest.raises(ConfigError, match=message):
+            learned_policies.main([*bad, *args])

@@ -1326,7 +1326,7 @@ def _comaddpg_seed_runs() -> tuple[dict, dict]:
     import comparison
 
     folder = ROOT / "docs" / "results" / "comaddpg" / "training_seeds"
-    with open(folder / "comaddpg_policies.csv", newline="", encoding="utf-8") as fh:
+    with open(folder / "learned_policies.csv", newline="", encoding="utf-8") as fh:
         runs = list(csv.DictReader(fh))
     cell: dict = {}
     for r in runs:

@@ -1,0 +1,176 @@
+"""Policy files of a learned comparator side by side on the comparison's setting.
+
+``--scheme`` is ``comaddpg`` (default), ``pa-dqn`` or ``coder``. Each policy (``NAME=FILE``, or
+``NAME=shipped`` for the scheme's shipped policy of each grid, the default) runs every grid,
+density and seed of the comparison (1x1 and 3x3, 300..2100 veh/lane/h, seeds 0-2, 3000 steps;
+Coder only on grids of at least 2x2), one batch per policy and grid (a batch gives each run's
+single result, tested). One markdown table per grid gives each policy's average travel
+velocity (mean over the seeds) and its strict collision events (sum), beside the committed
+runs of ``--reference-schemes`` (default MiVeCC-EEC) from a comparison CSV (``--reference``)
+where it holds them. Writes ``learned_policies.csv`` (every run) and ``learned_policies.md``
+to ``--out`` and prints the tables; one progress bar on stderr.
+
+Usage (docs/comparators.md, "Training seeds and a fuller critic" and "Training seeds of the
+learned signal comparators", have the committed runs):
+    python benchmarks/learned_policies.py --scheme pa-dqn --grids 1x1 --policies \\
+        seed0=shipped seed1=runs/pa_dqn_seed1/signal_dqn.pt --workers 2 \\
+        --out benchmarks/results/learned_policies
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from comparison import DENSITIES
+
+from mivecc_env import cli_args
+from mivecc_env.processes import map_jobs
+
+KEYS = ("policy", "rows", "cols", "density", "seed", "avg_travel_velocity_mps", "collisions",
+        "throughput", "backlog")
+SCHEMES = ("comaddpg", "pa-dqn", "coder")
+SHIPPED = "shipped"
+
+
+def _load(scheme: str, path: str, rows: int, cols: int) -> dict[str, Any]:
+    """The ``policies`` argument of one run: the file's policy, or the shipped one."""
+    from mivecc_agents.evaluation import shipped_comparator_policies
+
+    if path == SHIPPED:
+        return shipped_comparator_policies(scheme, rows, cols)
+    if scheme == "comaddpg":
+        from mivecc_agents.comaddpg import CoMADDPGPolicy
+
+        return {"vehicle": CoMADDPGPolicy.load(path)}
+    from mivecc_agents.signal_policy_files import load_signal_policy
+
+    return {"signal": load_signal_policy(path)}
+
+
+def _run(job: tuple[str, str, str, int, int, tuple[int, ...], int, tuple[int, ...]]
+         ) -> list[dict[str, Any]]:
+    """Every (density, seed) run of one policy on one grid, as one batch."""
+    import os
+
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
+    from mivecc_agents.evaluation import evaluate_batch
+
+    scheme, name, path, rows, cols, densities, steps, seeds = job
+    runs = evaluate_batch(scheme, rows, cols, [float(d) for d in densities], steps, seeds,
+                          policies=_load(scheme, path, rows, cols), progress=False, warn=False)
+    return [{"policy": name, **{key: run[key] for key in KEYS[1:]}} for run in runs]
+
+
+def reference_label(scheme: str) -> str:
+    """A reference scheme's column name (MiVeCC's schemes with the name in front)."""
+    return f"MiVeCC-{scheme}" if scheme in ("E", "EE", "EEC") else f"{scheme} (committed)"
+
+
+def reference_runs(path: Path | None, schemes: Sequence[str], steps: int
+                   ) -> list[dict[str, Any]]:
+    """The runs of ``schemes`` of ``steps`` steps in a comparison CSV (none without a file)."""
+    if path is None:
+        return []
+    with open(path, newline="", encoding="utf-8") as fh:
+        return [{"policy": reference_label(r["scheme"]), "rows": int(r["rows"]),
+                 "cols": int(r["cols"]), "density": int(float(r["density"])),
+                 "seed": int(r["seed"]),
+                 **{key: float(r[key]) for key in KEYS[5:]}}
+                for r in csv.DictReader(fh) if r["scheme"] in schemes
+                and int(r["steps"]) == steps]
+
+
+def tables(rows: list[dict[str, Any]], names: Sequence[str], grids: Sequence[tuple[int, int]],
+           densities: Sequence[int], seeds: Sequence[int]) -> str:
+    """Per grid: average travel velocity [m/s] (mean over the seeds) / strict collision events
+    (sum), per policy and density; a column only where it has every seed's run."""
+    lines = []
+    for r, c in grids:
+        cols = [n for n in names if all(
+            any((x["policy"], x["rows"], x["cols"], x["density"], x["seed"]) == (n, r, c, d, s)
+                for x in rows) for d in densities for s in seeds)]
+        lines += [f"### {r}x{c}: average travel velocity [m/s] (mean over seeds "
+                  f"{', '.join(map(str, seeds))}) / strict collision events (sum)", "",
+                  "| density [veh/lane/h] | " + " | ".join(cols) + " |",
+                  "|---" * (len(cols) + 1) + "|"]
+        for d in densities:
+            cells = [str(d)]
+            for n in cols:
+                runs = [x for x in rows if (x["policy"], x["rows"], x["cols"], x["density"])
+                        == (n, r, c, d) and x["seed"] in seeds]
+                cells.append(f"{np.mean([x['avg_travel_velocity_mps'] for x in runs]):.3f} / "
+                             f"{sum(x['collisions'] for x in runs):.0f}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def _policy(text: str) -> tuple[str, str]:
+    """``NAME=FILE`` (an existing file) or ``NAME=shipped``."""
+    name, sep, path = text.partition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"must be NAME=FILE or NAME={SHIPPED}, got {text!r}")
+    return name, path if path == SHIPPED else str(cli_args.existing_file(path))
+
+
+def main(argv: Sequence[str] | None = None) -> str:
+    from comparison import runs_on
+
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--scheme", choices=SCHEMES, default="comaddpg")
+    p.add_argument("--policies", nargs="+", type=_policy, metavar="NAME=FILE",
+                   default=[(SHIPPED, SHIPPED)],
+                   help=f"policy files; NAME={SHIPPED}: the scheme's shipped one per grid")
+    p.add_argument("--grids", nargs="+", type=cli_args.grid, default=[(1, 1), (3, 3)])
+    p.add_argument("--densities", nargs="+", type=cli_args.whole_density,
+                   default=list(DENSITIES))
+    p.add_argument("--seeds", nargs="+", type=cli_args.seed, default=[0, 1, 2])
+    p.add_argument("--steps", type=cli_args.count(1), default=3000)
+    p.add_argument("--workers", type=cli_args.count(1), default=1)
+    p.add_argument("--reference", type=cli_args.existing_file,
+                   default=Path("docs/results/comparison/comparison.csv"),
+                   help="comparison CSV with the reference schemes' runs (default: the "
+                   "committed one)")
+    p.add_argument("--reference-schemes", nargs="+", default=["EEC"],
+                   help="schemes of --reference shown beside the policies (default EEC)")
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/learned_policies"))
+    args = p.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
+    for option in ("grids", "seeds", "densities", "reference_schemes"):
+        cli_args.check_distinct(f"--{option.replace('_', '-')}", getattr(args, option))
+    names = [name for name, _ in args.policies]
+    cli_args.check_distinct("--policies", names)
+    grids = [(r, c) for r, c in args.grids if runs_on(args.scheme, r, c)]
+    if not grids:
+        raise cli_args.InputError(f"--grids: scheme {args.scheme} runs on none of them "
+                                  "(Coder needs 2x2 or larger)")
+    jobs = [(args.scheme, name, path, r, c, tuple(args.densities), args.steps,
+             tuple(args.seeds)) for (r, c) in grids for name, path in args.policies]
+    rows = [run for runs in map_jobs(_run, jobs, args.workers, "policy x grid")
+            for run in runs]
+    for row in rows:
+        row["density"] = int(row["density"])
+    with open(args.out / "learned_policies.csv", "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(KEYS))
+        writer.writeheader()
+        writer.writerows(rows)
+    reference = reference_runs(args.reference, args.reference_schemes, args.steps)
+    command = "python benchmarks/learned_policies.py " + shlex.join(
+        sys.argv[1:] if argv is None else list(argv))
+    labels = [*names, *(reference_label(s) for s in args.reference_schemes)]
+    text = tables(rows + reference, labels, grids, args.densities, args.seeds)
+    (args.out / "learned_policies.md").write_text(f"Written by `{command}`.\n\n{text}\n",
+                                                  encoding="utf-8")
+    print(text)
+    return text
+
+
+if __name__ == "__main__":
+    sys.exit(cli_args.run(main))
