@@ -147,6 +147,37 @@ def _number(row: dict[str, Any], key: str) -> float:
     return float("nan") if value is None or value == "" else float(value)
 
 
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """``--grids`` (1x1 3x3), ``--densities`` (:data:`DENSITIES`), ``--seeds`` (0 1 2),
+    ``--steps`` (3000) and ``--workers`` (1): the comparison's setting, for the scripts that
+    rerun parts of it."""
+    p.add_argument("--grids", nargs="+", type=cli_args.grid, default=[(1, 1), (3, 3)])
+    p.add_argument("--densities", nargs="+", type=cli_args.whole_density,
+                   default=list(DENSITIES))
+    p.add_argument("--seeds", nargs="+", type=cli_args.seed, default=[0, 1, 2])
+    p.add_argument("--steps", type=cli_args.count(1), default=3000)
+    p.add_argument("--workers", type=cli_args.count(1), default=1)
+
+
+def command_line(script: str, argv: Sequence[str] | None) -> str:
+    """The command that ran ``benchmarks/<script>`` with ``argv`` (``sys.argv`` when None)."""
+    return f"python benchmarks/{script} " + shlex.join(
+        sys.argv[1:] if argv is None else list(argv))
+
+
+def write_runs_and_tables(out: Path, stem: str, keys: Sequence[str],
+                          runs: Sequence[dict[str, Any]], script: str,
+                          argv: Sequence[str] | None, tables: str) -> None:
+    """``<stem>.csv`` (every run, columns ``keys``) and ``<stem>.md`` (the command that wrote
+    it, then ``tables``) in ``out``."""
+    with open(out / f"{stem}.csv", "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(keys))
+        writer.writeheader()
+        writer.writerows(runs)
+    (out / f"{stem}.md").write_text(
+        f"Written by `{command_line(script, argv)}`.\n\n{tables}\n", encoding="utf-8")
+
+
 def summarise(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
               schemes: Sequence[str], densities: Sequence[int]) -> list[dict[str, Any]]:
     """One row per (grid, density, scheme) with runs: :data:`TABLE_KEYS`.
@@ -437,8 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     _write_csv(rows, csv_path)
     table = summarise(rows, grids, args.schemes, args.densities)
     _write_csv(table, args.out / "comparison_table.csv", keys=TABLE_KEYS, sort=False)
-    command = "python benchmarks/comparison.py " + shlex.join(
-        sys.argv[1:] if argv is None else list(argv))
+    command = command_line("comparison.py", argv)
     md = markdown(rows, grids, args.schemes, args.densities, args.comparator_entry)
     header = (f"Written by `{command}` from {len(rows)} runs (sources: "
               f"{', '.join(sorted({str(r.get('source') or '') for r in rows})) or 'none'}; "

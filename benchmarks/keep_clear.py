@@ -14,15 +14,13 @@ Usage (the committed run, docs/comparators.md "Keeping the box clear"):
 
 from __future__ import annotations
 
-import csv
-import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from comparison import DENSITIES, runs_on
+from comparison import add_run_options, runs_on, write_runs_and_tables
 
 from mivecc_env import cli_args
 from mivecc_env.processes import map_jobs
@@ -76,12 +74,7 @@ def tables(rows: list[dict[str, Any]], grids: Sequence[tuple[int, int]],
 
 def main(argv: Sequence[str] | None = None) -> str:
     p = cli_args.Parser(description=__doc__.splitlines()[0])
-    p.add_argument("--grids", nargs="+", type=cli_args.grid, default=[(1, 1), (3, 3)])
-    p.add_argument("--densities", nargs="+", type=cli_args.whole_density,
-                   default=list(DENSITIES))
-    p.add_argument("--seeds", nargs="+", type=cli_args.seed, default=[0, 1, 2])
-    p.add_argument("--steps", type=cli_args.count(1), default=3000)
-    p.add_argument("--workers", type=cli_args.count(1), default=1)
+    add_run_options(p)
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/keep_clear"))
     args = p.parse_args(argv)
     cli_args.writable_dir("--out", args.out)
@@ -93,15 +86,8 @@ def main(argv: Sequence[str] | None = None) -> str:
     rows = map_jobs(_run, jobs, args.workers, "runs")
     for row in rows:
         row["density"] = int(row["density"])
-    with open(args.out / "keep_clear.csv", "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(KEYS))
-        writer.writeheader()
-        writer.writerows(rows)
-    command = "python benchmarks/keep_clear.py " + shlex.join(
-        sys.argv[1:] if argv is None else list(argv))
     text = tables(rows, args.grids, args.densities)
-    (args.out / "keep_clear.md").write_text(f"Written by `{command}`.\n\n{text}\n",
-                                            encoding="utf-8")
+    write_runs_and_tables(args.out, "keep_clear", KEYS, rows, "keep_clear.py", argv, text)
     print(text)
     return text
 

@@ -21,14 +21,13 @@ from __future__ import annotations
 
 import argparse
 import csv
-import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from comparison import DENSITIES
+from comparison import add_run_options, runs_on, write_runs_and_tables
 
 from mivecc_env import cli_args
 from mivecc_env.processes import map_jobs
@@ -121,19 +120,12 @@ def _policy(text: str) -> tuple[str, str]:
 
 
 def main(argv: Sequence[str] | None = None) -> str:
-    from comparison import runs_on
-
     p = cli_args.Parser(description=__doc__.splitlines()[0])
     p.add_argument("--scheme", choices=SCHEMES, default="comaddpg")
     p.add_argument("--policies", nargs="+", type=_policy, metavar="NAME=FILE",
                    default=[(SHIPPED, SHIPPED)],
                    help=f"policy files; NAME={SHIPPED}: the scheme's shipped one per grid")
-    p.add_argument("--grids", nargs="+", type=cli_args.grid, default=[(1, 1), (3, 3)])
-    p.add_argument("--densities", nargs="+", type=cli_args.whole_density,
-                   default=list(DENSITIES))
-    p.add_argument("--seeds", nargs="+", type=cli_args.seed, default=[0, 1, 2])
-    p.add_argument("--steps", type=cli_args.count(1), default=3000)
-    p.add_argument("--workers", type=cli_args.count(1), default=1)
+    add_run_options(p)
     p.add_argument("--reference", type=cli_args.existing_file,
                    default=Path("docs/results/comparison/comparison.csv"),
                    help="comparison CSV with the reference schemes' runs (default: the "
@@ -157,17 +149,11 @@ def main(argv: Sequence[str] | None = None) -> str:
             for run in runs]
     for row in rows:
         row["density"] = int(row["density"])
-    with open(args.out / "learned_policies.csv", "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(KEYS))
-        writer.writeheader()
-        writer.writerows(rows)
     reference = reference_runs(args.reference, args.reference_schemes, args.steps)
-    command = "python benchmarks/learned_policies.py " + shlex.join(
-        sys.argv[1:] if argv is None else list(argv))
     labels = [*names, *(reference_label(s) for s in args.reference_schemes)]
     text = tables(rows + reference, labels, grids, args.densities, args.seeds)
-    (args.out / "learned_policies.md").write_text(f"Written by `{command}`.\n\n{text}\n",
-                                                  encoding="utf-8")
+    write_runs_and_tables(args.out, "learned_policies", KEYS, rows, "learned_policies.py", argv,
+                          text)
     print(text)
     return text
 
