@@ -26,11 +26,13 @@ class ActionCheckingAEC(parallel_to_aec_wrapper):
         agent ever acts: the vehicle env when no vehicle reaches a control area within
         ``max_steps``) leaves ``agents`` empty and ``agent_selection`` None, so
         ``agent_iter()`` yields nothing, where the conversion itself would fail."""
+        not_reset = object()
+        self._observations = not_reset  # the conversion sets it once the parallel env reset
         try:
             super().reset(seed=seed, options=options)
         except Exception:
-            if self.env.agents:
-                raise
+            if self._observations is not_reset or self.agents:
+                raise  # the parallel env's reset failed, or something other than no agents
             self.agent_selection = None
             for name in ("terminations", "truncations", "rewards", "_cumulative_rewards"):
                 setattr(self, name, {})

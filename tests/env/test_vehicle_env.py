@@ -39,6 +39,8 @@ def test_aec_episode_without_any_agent_ends_at_reset() -> None:
     env = mivecc_vehicles_v0.env(rows=2, cols=2, density=300, max_steps=100)
     env.reset(seed=0)
     assert env.agents == [] and list(env.agent_iter()) == []
+    with pytest.raises(ValueError, match="seed"):  # the parallel env's own errors still raise
+        env.reset(seed=-1)
     env.reset(seed=1)  # and the next episode runs
     assert env.agents == ["vehicle_0"]
 
