@@ -5,7 +5,8 @@
 density and seed of the comparison (1x1 and 3x3, 300..2100 veh/lane/h, seeds 0-2, 3000 steps;
 Coder only on grids of at least 2x2), one batch per policy and grid (a batch gives each run's
 single result, tested). One markdown table per grid gives each policy's average travel
-velocity (mean over the seeds) and its strict collision events (sum), beside the committed
+velocity (mean over the seeds), its strict collision events (sum) and the vehicles that left
+the network (mean), beside the committed
 runs of ``--reference-schemes`` (default MiVeCC-EEC) from a comparison CSV (``--reference``)
 where it holds them. Writes ``learned_policies.csv`` (every run) and ``learned_policies.md``
 to ``--out`` and prints the tables; one progress bar on stderr.
@@ -29,6 +30,7 @@ from typing import Any
 import numpy as np
 from comparison import add_run_options, runs_on, write_runs_and_tables
 
+from mivecc_agents.cli import parse_set_items
 from mivecc_env import cli_args
 from mivecc_env.processes import map_jobs
 
@@ -53,17 +55,18 @@ def _load(scheme: str, path: str, rows: int, cols: int) -> dict[str, Any]:
     return {"signal": load_signal_policy(path)}
 
 
-def _run(job: tuple[str, str, str, int, int, tuple[int, ...], int, tuple[int, ...]]
-         ) -> list[dict[str, Any]]:
+def _run(job: tuple[str, str, str, int, int, tuple[int, ...], int, tuple[int, ...],
+                    dict[str, Any]]) -> list[dict[str, Any]]:
     """Every (density, seed) run of one policy on one grid, as one batch."""
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per worker
     from mivecc_agents.evaluation import evaluate_batch
 
-    scheme, name, path, rows, cols, densities, steps, seeds = job
+    scheme, name, path, rows, cols, densities, steps, seeds, overrides = job
     runs = evaluate_batch(scheme, rows, cols, [float(d) for d in densities], steps, seeds,
-                          policies=_load(scheme, path, rows, cols), progress=False, warn=False)
+                          policies=_load(scheme, path, rows, cols), progress=False, warn=False,
+                          **overrides)
     return [{"policy": name, **{key: run[key] for key in KEYS[1:]}} for run in runs]
 
 
@@ -89,14 +92,16 @@ def reference_runs(path: Path | None, schemes: Sequence[str], steps: int
 def tables(rows: list[dict[str, Any]], names: Sequence[str], grids: Sequence[tuple[int, int]],
            densities: Sequence[int], seeds: Sequence[int]) -> str:
     """Per grid: average travel velocity [m/s] (mean over the seeds) / strict collision events
-    (sum), per policy and density; a column only where it has every seed's run."""
+    (sum) / throughput [veh] (mean), per policy and density; a column only where it has every
+    seed's run."""
     lines = []
     for r, c in grids:
         cols = [n for n in names if all(
             any((x["policy"], x["rows"], x["cols"], x["density"], x["seed"]) == (n, r, c, d, s)
                 for x in rows) for d in densities for s in seeds)]
         lines += [f"### {r}x{c}: average travel velocity [m/s] (mean over seeds "
-                  f"{', '.join(map(str, seeds))}) / strict collision events (sum)", "",
+                  f"{', '.join(map(str, seeds))}) / strict collision events (sum) / vehicles out "
+                  f"(mean)", "",
                   "| density [veh/lane/h] | " + " | ".join(cols) + " |",
                   "|---" * (len(cols) + 1) + "|"]
         for d in densities:
@@ -105,7 +110,8 @@ def tables(rows: list[dict[str, Any]], names: Sequence[str], grids: Sequence[tup
                 runs = [x for x in rows if (x["policy"], x["rows"], x["cols"], x["density"])
                         == (n, r, c, d) and x["seed"] in seeds]
                 cells.append(f"{np.mean([x['avg_travel_velocity_mps'] for x in runs]):.3f} / "
-                             f"{sum(x['collisions'] for x in runs):.0f}")
+                             f"{sum(x['collisions'] for x in runs):.0f} / "
+                             f"{np.mean([x['throughput'] for x in runs]):.0f}")
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     return "\n".join(lines)
@@ -132,8 +138,12 @@ def main(argv: Sequence[str] | None = None) -> str:
                    "committed one)")
     p.add_argument("--reference-schemes", nargs="+", default=["EEC"],
                    help="schemes of --reference shown beside the policies (default EEC)")
+    p.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+", default=[],
+                   help="config fields of the policies' runs (not of the reference runs), "
+                   "e.g. signal_keep_clear=true")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/learned_policies"))
     args = p.parse_args(argv)
+    overrides = parse_set_items(args.set_items)
     cli_args.writable_dir("--out", args.out)
     for option in ("grids", "seeds", "densities", "reference_schemes"):
         cli_args.check_distinct(f"--{option.replace('_', '-')}", getattr(args, option))
@@ -144,7 +154,7 @@ def main(argv: Sequence[str] | None = None) -> str:
         raise cli_args.InputError(f"--grids: scheme {args.scheme} runs on none of them "
                                   "(Coder needs 2x2 or larger)")
     jobs = [(args.scheme, name, path, r, c, tuple(args.densities), args.steps,
-             tuple(args.seeds)) for (r, c) in grids for name, path in args.policies]
+             tuple(args.seeds), overrides) for (r, c) in grids for name, path in args.policies]
     rows = [run for runs in map_jobs(_run, jobs, args.workers, "policy x grid")
             for run in runs]
     for row in rows:

@@ -601,9 +601,10 @@ def test_learned_policies_puts_policies_beside_the_committed_runs(tmp_path: Path
             r["rows"], float(r["density"]), r["seed"]) == ("1", 900.0, "0")}
     assert float(rows[0]["avg_travel_velocity_mps"]) == float(
         committed["comaddpg"]["avg_travel_velocity_mps"])
-    eec = float(committed["EEC"]["avg_travel_velocity_mps"])
+    eec = committed["EEC"]
     assert "| density [veh/lane/h] | a | b | MiVeCC-EEC |" in text
-    assert f" | {eec:.3f} / 0 |" in text
+    assert (f" | {float(eec['avg_travel_velocity_mps']):.3f} / 0 / "
+            f"{float(eec['throughput']):.0f} |") in text
     # runs of another length have no reference column
     short = learned_policies.main(["--policies", f"a={SHIPPED_PATH}", *args[:-4],
                                    "--steps", "50", "--out", str(tmp_path)])
@@ -611,8 +612,9 @@ def test_learned_policies_puts_policies_beside_the_committed_runs(tmp_path: Path
     # a signal comparator: its shipped policy of the grid, the committed runs beside it
     text = learned_policies.main(["--scheme", "pa-dqn", "--reference-schemes", "pa-dqn",
                                   *args])
-    pa = float(committed["pa-dqn"]["avg_travel_velocity_mps"])
-    assert f"| 900 | {pa:.3f} / 0 | {pa:.3f} / 0 |" in text
+    pa = committed["pa-dqn"]
+    cell = f"{float(pa['avg_travel_velocity_mps']):.3f} / 0 / {float(pa['throughput']):.0f}"
+    assert f"| 900 | {cell} | {cell} |" in text
     for bad, message in ((["--policies", f"a={SHIPPED_PATH}", f"a={SHIPPED_PATH}"],
                           "--policies"),
                          (["--scheme", "coder"], "--grids: scheme coder runs on none")):

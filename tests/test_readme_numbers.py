@@ -1408,3 +1408,94 @@ def test_comaddpg_training_seeds_and_fuller_critic_are_the_committed_runs() -> N
                                                         f"actions_seed{s}") for s in (1, 2))]
     assert (f"are {obs_ten[0]}, {obs_ten[1]} and {obs_ten[2]}, against {act_ten[0]}, "
             f"{act_ten[1]} and {act_ten[2]} with the shipped critic") in docs
+
+
+def _policy_cells(path: Path) -> dict:
+    """(policy, density) -> (mean velocity, summed strict events, mean vehicles out) of a
+    ``benchmarks/learned_policies.py`` CSV."""
+    import csv
+
+    runs: dict = {}
+    with open(path, newline="", encoding="utf-8") as fh:
+        for r in csv.DictReader(fh):
+            runs.setdefault((r["policy"], int(r["density"])), []).append(r)
+    return {k: (float(np.mean([float(x["avg_travel_velocity_mps"]) for x in v])),
+                int(sum(float(x["collisions"]) for x in v)),
+                float(np.mean([float(x["throughput"]) for x in v]))) for k, v in runs.items()}
+
+
+def test_signal_comparators_training_seeds_are_the_committed_runs() -> None:
+    """docs/comparators.md, "Training seeds of the learned signal comparators": the places of
+    PA-DQN's and Coder's seeds among the signal controllers, Coder's collisions, EEC's lead,
+    and the keep-clear reruns; the shipped policies' runs equal the committed comparison's."""
+    import comparison
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    results = ROOT / "docs" / "results"
+    rows = list(comparison.load_rows([results / "comparison" / "comparison.csv"]).values())
+    signals = ["fixed-time", "actuated", "max-pressure"]
+    table = comparison.summarise(rows, [(1, 1), (3, 3)], [*signals, "pa-dqn", "coder", "EEC"],
+                                 DENSITIES)
+    ref = {(t["grid"], t["scheme"], t["density"]): t for t in table}
+    seeds = ("seed0", "seed1", "seed2")
+    pa1 = _policy_cells(results / "pa_dqn" / "training_seeds" / "1x1" / "learned_policies.csv")
+    pa3 = _policy_cells(results / "pa_dqn" / "training_seeds" / "3x3" / "learned_policies.csv")
+    coder = _policy_cells(results / "coder" / "training_seeds" / "learned_policies.csv")
+    for cells, grid, scheme in ((pa1, "1x1", "pa-dqn"), (pa3, "3x3", "pa-dqn"),
+                                (coder, "3x3", "coder")):
+        for d in DENSITIES:
+            t = ref[grid, scheme, d]
+            assert cells["seed0", d][1] == t["collisions"]  # means: to the last place or so
+            assert cells["seed0", d][0] == pytest.approx(t["velocity_mean_mps"], abs=1e-12)
+
+    def best(grid: str, d: int, key: str) -> float:
+        return max(ref[grid, s, d][key] for s in signals)
+
+    # PA-DQN 1x1: every seed first in velocity from 900 on, in throughput from 600 on
+    spread = max(max(pa1[s, d][0] for s in seeds) - min(pa1[s, d][0] for s in seeds)
+                 for d in DENSITIES)
+    assert f"the three are within {spread:.2f} m/s of each other" in docs
+    assert all(pa1[s, d][0] > best("1x1", d, "velocity_mean_mps") for s in seeds
+               for d in DENSITIES[2:])
+    assert all(12 * pa1[s, d][2] > best("1x1", d, "throughput_vph_mean") for s in seeds
+               for d in DENSITIES[1:])
+    assert all(pa1[s, d][1] == 0 for s in seeds for d in DENSITIES)
+    # PA-DQN 3x3
+    fixed = {d: ref["3x3", "fixed-time", d] for d in DENSITIES}
+    assert all(12 * pa3["seed0", d][2] > best("3x3", d, "throughput_vph_mean")
+               for d in DENSITIES[3:])
+    assert all(12 * pa3[s, d][2] < fixed[d]["throughput_vph_mean"] for s in seeds[1:]
+               for d in DENSITIES[3:])
+    assert (f"({pa3['seed1', 2100][2]:.0f} and {pa3['seed2', 2100][2]:.0f} vehicles out at 2100 "
+            f"against {fixed[2100]['throughput_vph_mean'] / 12:.0f})") in docs
+    assert all(pa3[s, d][0] > fixed[d]["velocity_mean_mps"] for s in seeds for d in DENSITIES)
+    above_mp = [(s, d) for s in seeds for d in DENSITIES
+                if pa3[s, d][0] > ref["3x3", "max-pressure", d]["velocity_mean_mps"]]
+    assert above_mp == [("seed2", 1500)] and pa3["seed2", 1500][1] == 1
+    # Coder
+    assert [coder["seed1", d][1] for d in DENSITIES] == [0, 0, 8, 27, 26, 28, 23]
+    assert "112 strict events at 900-2100 veh/lane/h (8, 27, 26, 28, 23)" in docs
+    assert all(coder[s, d][1] == 0 for s in ("seed0", "seed2") for d in DENSITIES)
+
+    def lead(policy: str) -> str:
+        g = [100 * (ref["3x3", "EEC", d]["velocity_mean_mps"] / coder[policy, d][0] - 1)
+             for d in DENSITIES]
+        return f"{min(g):.0f}-{max(g):.0f} %"
+
+    assert (f"{lead('seed0')} with the shipped seed, {lead('seed1')} with seed 1 and "
+            f"{lead('seed2')} with seed 2") in docs
+    text = " ".join(RESULTS.split())
+    assert (f"with seeds 1 and 2 EEC leads by {lead('seed1')[:-2]} % and {lead('seed2')[:-2]} %, "
+            "and seed 1 collides (112 strict events") in text
+    # keep-clear: every policy collision-free, the others' runs unchanged
+    coder_kc = _policy_cells(results / "coder" / "training_seeds" / "keep_clear" /
+                             "learned_policies.csv")
+    pa3_kc = _policy_cells(results / "pa_dqn" / "training_seeds" / "3x3_keep_clear" /
+                           "learned_policies.csv")
+    assert all(c[s, d][1] == 0 for c in (coder_kc, pa3_kc) for s in seeds for d in DENSITIES)
+    assert all(coder_kc[s, d] == coder[s, d] for s in ("seed0", "seed2") for d in DENSITIES)
+    assert all(pa3_kc[s, d] == pa3[s, d] for s in ("seed0", "seed1") for d in DENSITIES)
+    out = [round(coder[("seed1", d)][2]) for d in DENSITIES[3:]]
+    out_kc = [round(coder_kc[("seed1", d)][2]) for d in DENSITIES[3:]]
+    assert (f"from {min(out)}-{max(out)} to {min(out_kc)}-{max(out_kc)} vehicles out at "
+            "1200-2100") in docs
