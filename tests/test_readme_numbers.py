@@ -106,6 +106,21 @@ def test_released_model_gain_rows(released):
     events = [" / ".join(str(released[(s, d)]["events"]) for s in ("E", "EE", "EEC"))
               for d in DENSITIES]
     assert "| events E / EE / EEC | " + " | ".join(events) + " |" in RESULTS
+    coder = [f"{g:+.1f} ({PAPER_3X3['EEC vs Coder'][d]:.1f})"
+             for g, d in zip(_gains(released, "EEC", "coder", "rv"), DENSITIES, strict=True)]
+    assert "| EEC vs Coder [%] | " + " | ".join(coder) + " |" in RESULTS
+
+
+def test_coder_runs_do_not_depend_on_the_model() -> None:
+    """The released table's Coder runs equal the default table's, run for run."""
+    runs = {}
+    for name in ("paper_table", "paper_table_released"):
+        rows = read_runs_csv(ROOT / "docs" / "results" / name / "paper_table.csv")
+        runs[name] = {(x["density"], x["seed"]): (x["avg_travel_velocity_mps"],
+                                                   x["released_velocity_mps"], x["collisions"],
+                                                   x["throughput"])
+                      for x in rows if x["scheme"] == "coder"}
+    assert len(runs["paper_table"]) == 21 and runs["paper_table"] == runs["paper_table_released"]
 
 
 def test_released_model_cloud_span(released):
