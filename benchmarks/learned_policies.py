@@ -8,8 +8,9 @@ single result, tested). One markdown table per grid gives each policy's average 
 velocity (mean over the seeds), its strict collision events (sum) and the vehicles that left
 the network (mean), beside the committed
 runs of ``--reference-schemes`` (default MiVeCC-EEC) from a comparison CSV (``--reference``)
-where it holds them. Writes ``learned_policies.csv`` (every run) and ``learned_policies.md``
-to ``--out`` and prints the tables; one progress bar on stderr.
+where it holds them. Writes ``learned_policies.csv`` (every run), ``learned_policies.md`` and
+``learned_policies.png`` (velocity and strict events against the demand) to ``--out`` and
+prints the tables; one progress bar on stderr.
 
 Usage (docs/comparators.md, "Training seeds and a fuller critic" and "Training seeds of the
 learned signal comparators", have the committed runs):
@@ -117,6 +118,42 @@ def tables(rows: list[dict[str, Any]], names: Sequence[str], grids: Sequence[tup
     return "\n".join(lines)
 
 
+def figure(rows: list[dict[str, Any]], names: Sequence[str], grids: Sequence[tuple[int, int]],
+           densities: Sequence[int], seeds: Sequence[int], path: Path) -> Path:
+    """A PNG per :func:`tables`: for each grid, the average travel velocity (mean over the
+    seeds) and the strict collision events (sum) against the density, one line per policy
+    (references dashed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mivecc_agents.signal_dqn import save_figure
+
+    fig, axes = plt.subplots(2, len(grids), figsize=(6.5 * len(grids), 7.5), squeeze=False,
+                             sharex=True)
+    for col, (r, c) in enumerate(grids):
+        for i, name in enumerate(names):
+            runs = [[x for x in rows if (x["policy"], x["rows"], x["cols"], x["density"])
+                     == (name, r, c, d) and x["seed"] in seeds] for d in densities]
+            if not all(len(cell) == len(seeds) for cell in runs):
+                continue
+            style = {"ls": "--" if "(committed)" in name or name.startswith("MiVeCC-") else "-",
+                     "marker": "os^vD<>ph*"[i % 10], "ms": 4, "label": name}
+            axes[0, col].plot(densities, [np.mean([x["avg_travel_velocity_mps"] for x in cell])
+                                          for cell in runs], **style)
+            axes[1, col].plot(densities, [sum(x["collisions"] for x in cell) for cell in runs],
+                              **style)
+        axes[0, col].set_title(f"{r}x{c} (seeds {', '.join(map(str, seeds))})")
+        axes[0, col].set_ylabel("average travel velocity [m/s]\n(mean over the seeds)")
+        axes[1, col].set_ylabel("strict collision events\n(sum over the seeds)")
+        axes[1, col].set_xlabel("demand [veh/lane/h]")
+        for ax in axes[:, col]:
+            ax.grid(alpha=0.3)
+    axes[0, -1].legend(fontsize=8, loc="best")
+    return save_figure(fig, path)
+
+
 def _policy(text: str) -> tuple[str, str]:
     """``NAME=FILE`` (an existing file) or ``NAME=shipped``."""
     name, sep, path = text.partition("=")
@@ -164,6 +201,8 @@ def main(argv: Sequence[str] | None = None) -> str:
     text = tables(rows + reference, labels, grids, args.densities, args.seeds)
     write_runs_and_tables(args.out, "learned_policies", KEYS, rows, "learned_policies.py", argv,
                           text)
+    figure(rows + reference, labels, grids, args.densities, args.seeds,
+           args.out / "learned_policies.png")
     print(text)
     return text
 

@@ -593,6 +593,7 @@ def test_learned_policies_puts_policies_beside_the_committed_runs(tmp_path: Path
     with open(tmp_path / "learned_policies.csv", newline="", encoding="utf-8") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["policy"] for r in rows] == ["a", "b"]
+    assert (tmp_path / "learned_policies.png").stat().st_size > 10_000
     assert rows[0]["avg_travel_velocity_mps"] == rows[1]["avg_travel_velocity_mps"]
     # the shipped policy's committed comparison run, and MiVeCC-EEC's beside it
     with open(Path(comparison.__file__).parents[1] / "docs/results/comparison/comparison.csv",
