@@ -1510,6 +1510,8 @@ def test_signal_comparators_training_seeds_are_the_committed_runs() -> None:
     assert all(c[s, d][1] == 0 for c in (coder_kc, pa3_kc) for s in seeds for d in DENSITIES)
     assert all(coder_kc[s, d] == coder[s, d] for s in ("seed0", "seed2") for d in DENSITIES)
     assert all(pa3_kc[s, d] == pa3[s, d] for s in ("seed0", "seed1") for d in DENSITIES)
+    moved = max(abs(pa3_kc["seed2", d][0] - pa3["seed2", d][0]) for d in DENSITIES)
+    assert f"(its mean velocity moves by at most {moved:.3f} m/s)" in docs
     out = [round(coder[("seed1", d)][2]) for d in DENSITIES[3:]]
     out_kc = [round(coder_kc[("seed1", d)][2]) for d in DENSITIES[3:]]
     assert (f"from {min(out)}-{max(out)} to {min(out_kc)}-{max(out_kc)} vehicles out at "
