@@ -152,3 +152,11 @@ def test_bad_input_is_refused_with_the_field_or_agent_named() -> None:
                              ([0.0], "actions: expected a dict")):
         with pytest.raises(ValueError, match=message):
             env.step(actions)
+    while len(env.agents) < 3:
+        env.step({a: 0.5 for a in env.agents})  # scalars are accepted
+    last = env.agents[-1]
+    for bad in ([np.nan], [3.5], [[0.0]], "fast", [0.0, 0.0]):
+        actions = {a: np.zeros(1, np.float32) for a in env.agents}
+        actions[last] = bad  # the one bad action among good ones is named
+        with pytest.raises(ValueError, match=rf"actions\['{last}'\]: must be one finite"):
+            env.step(actions)
