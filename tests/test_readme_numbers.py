@@ -1557,3 +1557,42 @@ def test_comaddpg_wide_critic_is_the_committed_runs() -> None:
 
     assert (f"the last ten training episodes have {last_ten(wide[0])} and {last_ten(wide[1])} "
             "collision events") in docs
+
+
+def test_pa_dqn_rerun_on_another_cpu_is_the_committed_run() -> None:
+    """docs/comparators.md, PA-DQN "On another CPU": the rerun's policy stays within 0.06 m/s
+    of the shipped one and is the fastest signal controller from 900 veh/lane/h on; the rerun's
+    log first differs in the second episode's loss and has the same summary figures."""
+    import csv
+
+    import comparison
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    folder = ROOT / "docs" / "results" / "pa_dqn"
+    cells = _policy_cells(folder / "train_1x1_rerun_xeon" / "learned_policies.csv")
+    gap = max(abs(cells["rerun_xeon", d][0] - cells["shipped", d][0]) for d in DENSITIES)
+    assert gap < 0.06 and "stay within 0.06 m/s of the shipped policy's" in docs
+    rows = list(comparison.load_rows([ROOT / "docs" / "results" / "comparison" /
+                                      "comparison.csv"]).values())
+    table = comparison.summarise(rows, [(1, 1)], ["fixed-time", "actuated", "max-pressure"],
+                                 DENSITIES)
+    best = {d: max(t["velocity_mean_mps"] for t in table if t["density"] == d)
+            for d in DENSITIES}
+    assert all(cells["rerun_xeon", d][0] > best[d] for d in DENSITIES[2:])
+    assert all(cells["rerun_xeon", d][1] == 0 for d in DENSITIES)
+    logs = []
+    for path in (folder / "train_1x1_rerun_xeon" / "train_log.csv",
+                 folder / "train_1x1" / "train_log.csv"):
+        with open(path, newline="", encoding="utf-8") as fh:
+            logs.append(list(csv.DictReader(fh)))
+    differs = [i for i, (a, b) in enumerate(zip(*logs, strict=True)) if any(
+        a[k] != b[k] for k in a if k != "wall_s")]
+    assert differs[0] == 1 and [k for k in logs[0][1] if k != "wall_s"
+                                and logs[0][1][k] != logs[1][1][k]] == ["loss"]
+
+    def summary(log: list[dict]) -> tuple:  # as the docs round them
+        last = log[-10:]
+        return tuple(f"{f(float(r[key]) for r in last):.{places}f}" for key, places in (
+            ("reward_per_decision", 2), ("throughput", 0)) for f in (min, max))
+
+    assert summary(logs[0]) == summary(logs[1])
