@@ -1387,6 +1387,8 @@ def test_comaddpg_training_seeds_and_fuller_critic_are_the_committed_runs() -> N
     assert (events("actions_seed2", "3x3"), cell["actions_seed2", "3x3", 2100][1],
             events("actions_seed2", "1x1")) == (58, 31, 6)
     assert "with `--seed 2` it has 58 strict events on 3x3 (31 at 2100 veh/lane/h)" in text
+    assert [cell["actions_seed2", "1x1", d][1] for d in DENSITIES] == [0, 1, 0, 0, 2, 1, 2]
+    assert "(on 1x1 5 of its 6 events fall at 1500 veh/lane/h and above, one at 600)" in docs
     obs = [f"observations_seed{s}" for s in range(3)]
     assert all(all(above(p, "3x3")) for p in obs)
     assert [events(p, "3x3") for p in obs] == [39, 67, 24]
