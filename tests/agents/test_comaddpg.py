@@ -246,6 +246,8 @@ def test_command_line(tmp_path, capsys) -> None:
         (["evaluate", "--scheme", "comaddpg", "--vehicle-checkpoint",
           str(shipped_pa_dqn_path(1, 1))], "holds the 'signal_dqn' policy"),
         (["train-comaddpg", "--out", str(out), "--gamma", "2"], "gamma: must be a number"),
+        (["train-comaddpg", "--out", str(out), "--critic-view", "all"],
+         "argument --critic-view: invalid choice: 'all'"),
     ):
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
