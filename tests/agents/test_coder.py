@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -290,3 +291,23 @@ def test_shipped_policy_keeps_its_documented_place_among_the_signals() -> None:
                                                   pressure["avg_travel_velocity_mps"])
     assert pressure["throughput"] < coder["throughput"] < fixed["throughput"]
     assert coder["collisions"] == 0
+
+
+def test_evaluate_notes_signal_collisions_without_keep_clear(capsys) -> None:
+    # Coder's training seed 1 blocks boxes: 8 strict events at 1200 veh/lane/h, seed 0
+    # (docs/comparators.md, "Training seeds of the learned signal comparators"), none with the rule
+    path = (Path(__file__).resolve().parents[2] / "docs" / "results" / "coder" /
+            "training_seeds" / "seed1" / "coder.pt")
+    argv = ["evaluate", "--scheme", "coder", "--signal-checkpoint", str(path), "--density",
+            "1200", "--seed", "0", "--json", "--no-progress"]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["collisions"] == 8
+    assert captured.err.strip() == (
+        "mivecc: note: 8 strict collision events under signals without the keep-clear rule; "
+        "vehicles that drive into a blocked box collide there: rerun with --set "
+        "signal_keep_clear=true to tell them apart (docs/comparators.md, \"Keeping the box "
+        "clear\")")
+    assert cli.main([*argv, "--set", "signal_keep_clear=true"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["collisions"] == 0 and captured.err == ""
