@@ -39,6 +39,7 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from mivecc_env.actions import to_host
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.config import ConfigError, from_overrides
 from mivecc_env.vehicle_agents import (
@@ -198,12 +199,12 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         a_max = self.config.a_max_mps2
         try:  # all at once: one array op instead of one check per vehicle
             values = np.asarray([actions[name] for name in names], dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, RuntimeError):  # (RuntimeError: a tensor needing grad)
             values = None
         if values is not None and values.shape in ((len(names),), (len(names), 1)) and bool(
                 np.all(np.abs(values) <= a_max + 1e-6)):  # (NaN fails the comparison)
             return np.clip(values.reshape(len(names)), -a_max, a_max)
-        # some action is bad: the per-vehicle check names the first one
+        # some action is bad (named by the per-vehicle check) or a tensor (taken by its values)
         return np.array([self._checked_acceleration(name, actions[name]) for name in names])
 
     def _checked_acceleration(self, name: str, action: Any) -> float:
@@ -211,7 +212,7 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         box (a value past the box's edge by float32 rounding only is put on the edge)."""
         a_max = self.config.a_max_mps2
         try:
-            value = np.asarray(action, dtype=np.float64)
+            value = np.asarray(to_host(action), dtype=np.float64)
         except (TypeError, ValueError):
             value = np.full(2, np.nan)  # not a number: refused below, naming the agent
         if value.shape not in ((), (1,)) or not np.isfinite(value).all() or (

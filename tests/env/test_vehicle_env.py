@@ -154,6 +154,9 @@ def test_bad_input_is_refused_with_the_field_or_agent_named() -> None:
             env.step(actions)
     while len(env.agents) < 3:
         env.step({a: 0.5 for a in env.agents})  # scalars are accepted
+    import torch  # a tensor that requires grad is taken by its values, as in the other envs
+
+    env.step({a: torch.tensor([0.5], requires_grad=True) for a in env.agents})
     last = env.agents[-1]
     for bad in ([np.nan], [3.5], [[0.0]], "fast", [0.0, 0.0]):
         actions = {a: np.zeros(1, np.float32) for a in env.agents}
