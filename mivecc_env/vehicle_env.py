@@ -92,6 +92,7 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         n_lanes = int(self._env.sim.network.n_lanes)
         self.possible_agents = [f"vehicle_{i}" for i in range(n_lanes * per_lane)]
         self.agents: list[str] = []
+        self._live: list[str] = []  # the names of self._agents (self.agents is the user's)
         self._agents: VehicleAgents | None = None
         self._retired = np.zeros(len(self.possible_agents), dtype=bool)
         self._obs_space = spaces.Box(-1.0, 1.0, (self.k, 3), np.float32)
@@ -114,8 +115,10 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         self._retired[:] = False
         self._agents = self._observe()
         self._advance_while_empty()
-        self.agents = self._names(self._agents)
-        return self._observations(self._agents), self._infos(self._agents)
+        self._live = self._names(self._agents)
+        self.agents = list(self._live)
+        return (self._observations(self._agents, self._live),
+                self._infos(self._agents, self._live))
 
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         """Apply every live agent's acceleration and advance one step (a missing or unknown
@@ -126,7 +129,7 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
             raise RuntimeError("step: call reset() first")
         if not self.agents:
             raise RuntimeError("step: the episode has ended (no agents); call reset()")
-        names = self._names(agents)
+        names = self._live  # the names of ``agents``, made when they were observed
         accel = self._accelerations(actions, names)
         self._env.step_vehicles(vehicle_commands(agents, accel, 1))
         nxt = self._observe()
@@ -142,7 +145,7 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
         old = set(names)
         # at the end no agent joins: the entries are those of the agents that acted
         new = [] if done else [a for a in live if a not in old]
-        current = {a: o for a, o in self._observations(self._agents).items()
+        current = {a: o for a, o in self._observations(self._agents, live).items()
                    if a in old or not done}
         obs = {**{a: np.zeros((self.k, 3), np.float32) for a in names}, **current}
         rewards = {**dict(zip(names, reward.tolist(), strict=True)), **dict.fromkeys(new, 0.0)}
@@ -150,8 +153,9 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
                       **dict.fromkeys(new, False)}
         truncated = {a: done and not terminated[a] for a in obs}
         infos = {**{a: {} for a in names},
-                 **{a: i for a, i in self._infos(self._agents).items() if a in obs}}
-        self.agents = [] if done else live
+                 **{a: i for a, i in self._infos(self._agents, live).items() if a in obs}}
+        self._live = live
+        self.agents = [] if done else list(live)
         return obs, rewards, terminated, truncated, infos
 
     def summary(self) -> dict[str, float]:
@@ -224,13 +228,15 @@ class MiVeCCVehiclesParallelEnv(ParallelEnv):
     def _names(self, agents: VehicleAgents) -> list[str]:
         return [f"vehicle_{v}" for v in agents.vid.tolist()]
 
-    def _observations(self, agents: VehicleAgents) -> dict[str, np.ndarray]:
-        return dict(zip(self._names(agents), agents.obs, strict=True))
+    def _observations(self, agents: VehicleAgents, names: list[str]) -> dict[str, np.ndarray]:
+        """Each agent's observation under its name (``names``: :meth:`_names` of ``agents``)."""
+        return dict(zip(names, agents.obs, strict=True))
 
-    def _infos(self, agents: VehicleAgents) -> dict[str, dict]:
+    def _infos(self, agents: VehicleAgents, names: list[str]) -> dict[str, dict]:
+        """Each agent's info under its name (``names``: :meth:`_names` of ``agents``)."""
         step = int(self._env.episode_steps[0])
         return {name: {"slot": int(slot), "env_step": step}
-                for name, slot in zip(self._names(agents), agents.slot.tolist(), strict=True)}
+                for name, slot in zip(names, agents.slot.tolist(), strict=True)}
 
 
 def _subset(agents: VehicleAgents, keep: np.ndarray) -> VehicleAgents:
