@@ -31,6 +31,7 @@ from mivecc_agents.signal_dqn import SignalDQNPolicy, SignalQNetwork
 from mivecc_agents.signal_dqn import shipped_policy_path as shipped_pa_dqn_path
 from mivecc_agents.signal_policy_files import load_signal_policy, shipped_signal_policy_path
 from mivecc_env.config import ConfigError
+from tests.agents.tiny import retrain_is_identical
 
 TINY = CoderSettings(episodes=2, global_episodes=2, batch=2, episode_steps=300, warmup=8,
                      rows=2, cols=2, densities=(900.0,))
@@ -151,12 +152,7 @@ def test_training_is_deterministic_and_the_second_stage_keeps_the_regions(tiny_r
     # each stage fills its own buffer (8 transitions of warm-up: 2 per decision, 3 decisions
     # per episode), then updates
     assert [bool(np.isfinite(r["loss"])) for r in log] == [False, True, False, True]
-    state = torch.random.get_rng_state()
-    again, log2 = train_coder(TINY)
-    assert torch.equal(torch.random.get_rng_state(), state)
-    for a, b in zip(policy.regional.state_dict().values(), again.regional.state_dict().values(),
-                    strict=True):
-        assert torch.equal(a, b)
+    log2 = retrain_is_identical(train_coder, TINY, policy, "regional")
     assert [r["loss"] for r in log] == [r["loss"] for r in log2]
     # the aggregation stage trains the aggregation network only
     shorter, _ = train_coder(CoderSettings(**{**TINY.to_dict(), "global_episodes": 1,

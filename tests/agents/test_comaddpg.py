@@ -28,6 +28,7 @@ from mivecc_agents.signal_dqn import shipped_policy_path as shipped_pa_dqn_path
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.config import ConfigError
 from mivecc_env.vehicle_agents import observe_vehicles, vehicle_commands
+from tests.agents.tiny import retrain_is_identical
 
 TINY = CoMADDPGSettings(episodes=2, batch=2, episode_steps=150, warmup=64, minibatch=32,
                         densities=(1500.0,))
@@ -162,12 +163,7 @@ def test_training_is_deterministic_and_leaves_torch_rng_alone(tiny_run) -> None:
     policy, log = tiny_run
     assert [r["episode"] for r in log] == [1, 2]
     assert all(np.isfinite(r["critic_loss"]) for r in log)
-    state = torch.random.get_rng_state()
-    again, log2 = train_comaddpg(TINY)
-    assert torch.equal(torch.random.get_rng_state(), state)
-    for a, b in zip(policy.actor.state_dict().values(), again.actor.state_dict().values(),
-                    strict=True):
-        assert torch.equal(a, b)
+    log2 = retrain_is_identical(train_comaddpg, TINY, policy, "actor")
     assert [r["reward_per_transition"] for r in log] == [r["reward_per_transition"]
                                                           for r in log2]
 
@@ -175,11 +171,9 @@ def test_training_is_deterministic_and_leaves_torch_rng_alone(tiny_run) -> None:
 def test_training_with_the_observations_critic_is_deterministic() -> None:
     settings = CoMADDPGSettings(episodes=1, batch=2, episode_steps=150, warmup=64,
                                 minibatch=32, densities=(1500.0,), critic_view="observations")
-    (first, log), (again, _) = train_comaddpg(settings), train_comaddpg(settings)
+    first, log = train_comaddpg(settings)
     assert np.isfinite(log[0]["critic_loss"])
-    for a, b in zip(first.actor.state_dict().values(), again.actor.state_dict().values(),
-                    strict=True):
-        assert torch.equal(a, b)
+    retrain_is_identical(train_comaddpg, settings, first, "actor")
     assert first.settings["critic_view"] == "observations"
 
 

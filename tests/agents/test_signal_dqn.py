@@ -21,6 +21,7 @@ from mivecc_agents.signal_dqn import (
 )
 from mivecc_agents.signal_dqn_settings import SignalDQNSettings
 from mivecc_env.config import ConfigError
+from tests.agents.tiny import retrain_is_identical
 
 TINY = SignalDQNSettings(episodes=2, batch=2, episode_steps=300, warmup=8, densities=(900.0,))
 
@@ -50,12 +51,7 @@ def test_training_is_deterministic_and_leaves_torch_rng_alone(tiny_run) -> None:
     policy, log = tiny_run
     assert [r["episode"] for r in log] == [1, 2]
     assert np.isnan(log[0]["loss"]) and np.isfinite(log[1]["loss"])  # updates after warm-up
-    state = torch.random.get_rng_state()
-    again, log2 = train_signal_dqn(TINY)
-    assert torch.equal(torch.random.get_rng_state(), state)
-    for a, b in zip(policy.net.state_dict().values(), again.net.state_dict().values(),
-                    strict=True):
-        assert torch.equal(a, b)
+    log2 = retrain_is_identical(train_signal_dqn, TINY, policy, "net")
     assert [r["loss"] for r in log] == [r["loss"] for r in log2]
     other, _ = train_signal_dqn(SignalDQNSettings(**{**TINY.to_dict(), "seed": 1,
                                                      "densities": TINY.densities}))

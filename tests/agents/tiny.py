@@ -25,3 +25,17 @@ def train_tiny_edge(out_dir: Path, preset: Any = TINY, **kwargs: Any) -> Path:
 
     return train("edge", preset, frames=200, rows=1, cols=1, densities=1500, seed=0,
                  out_dir=out_dir, progress=False, **kwargs)
+
+
+def retrain_is_identical(train: Any, settings: Any, first: Any, network: str) -> list:
+    """Train again with ``settings``: torch's global random state must be left as it was and
+    the policy's ``network`` module must equal ``first``'s bit for bit; returns the new log."""
+    import torch
+
+    state = torch.random.get_rng_state()
+    again, log = train(settings)
+    assert torch.equal(torch.random.get_rng_state(), state)
+    for a, b in zip(getattr(first, network).state_dict().values(),
+                    getattr(again, network).state_dict().values(), strict=True):
+        assert torch.equal(a, b)
+    return log
