@@ -62,14 +62,12 @@ from mivecc_env.sim._numba import HAVE_NUMBA
 HERE = Path(__file__).resolve().parent
 DEFAULT_OUT = HERE / "results" / "batch_fuzz"
 
-#: Choice fields drawn by the preset (``model``) or separately, or not at all
-#: (``signal_keep_clear``, added after the committed digests; tested on its own); every other
-#: choice field of the config is drawn from its choices (half of the cases leave each at its
-#: default).
-NOT_DRAWN = ("model", "signal_keep_clear")
-#: Choice fields added to the config after the committed digests were made: drawn last, from a
-#: generator of their own, so every other draw of a case (and its digest) stays as it was.
-LATE_CHOICES = ("comparator_entry",)
+#: Choice fields drawn by the preset (``model``) or separately; every other choice field of
+#: the config is drawn from its choices (half of the cases leave each at its default).
+NOT_DRAWN = ("model",)
+#: Choice fields added to the config after the committed digests were made: drawn last, in this
+#: order, from a generator of their own, so every other draw of a case stays as it was.
+LATE_CHOICES = ("comparator_entry", "signal_keep_clear")
 #: Numeric fields, each drawn in 15 % of the cases from a moderate part of its range:
 #: (low, high, integer). Values that do not fit together are refused by the config.
 NUMERIC: dict[str, tuple[float, float, bool]] = {

@@ -21,6 +21,9 @@ one evaluation episode on the same seeded demand. Writes to ``--out``:
 ``--comparator-entry slowed`` runs the comparators with ``comparator_entry="slowed"`` (they
 enter at MiVeCC's clearance, slower into a short gap); runs are then reused from the CSVs only
 where they were made with the same entry rule (MiVeCC's runs do not depend on it).
+``--signal-keep-clear false`` runs the signal controllers without the keep-clear rule (on by
+default since session 45); their runs are reused only where made with the same rule (a row
+without the ``signal_keep_clear`` column was made without it).
 
 Runs already in a CSV given with ``--from-csv`` are reused when grid, scheme, density, seed and
 steps match, so only the missing runs are simulated; when several CSVs hold a run, the LAST one
@@ -52,7 +55,13 @@ from tqdm import tqdm
 
 from mivecc_agents.evaluation import COMPARATORS
 from mivecc_env import cli_args
+from mivecc_env.config import MiVeCCConfig
 
+#: The comparators run under signals (their runs depend on ``signal_keep_clear``).
+SIGNAL_SCHEMES = tuple(s for s, fields in COMPARATORS.items()
+                       if fields.get("control") == "signalized")
+#: The keep-clear rule of the runs made here (the config's default).
+SIGNAL_KEEP_CLEAR: bool = MiVeCCConfig().signal_keep_clear
 SCHEMES = ("E", "EE", "EEC", "fixed-time", "actuated", "max-pressure", "pa-dqn", "coder",
            "reservation", "optimisation", "comaddpg")
 #: The paper's Table eff_imp_rate, row "MiVeCC-EEC vs. Coder" (3x3) [%], by density.
@@ -75,7 +84,7 @@ def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per episode
     from mivecc_agents.evaluation import evaluate_scheme, shipped_comparator_policies
 
-    scheme, rows, cols, density, steps, seed, entry = job
+    scheme, rows, cols, density, steps, seed, entry, keep_clear = job
     if scheme in ("EE", "EEC"):
         from mivecc_agents.policies import pretrained_policies
 
@@ -83,7 +92,8 @@ def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
     else:
         policies = shipped_comparator_policies(scheme, rows, cols)
     out = evaluate_scheme(scheme, rows, cols, density, steps, seed, policies=policies,
-                          progress=False, warn=False, comparator_entry=entry)
+                          progress=False, warn=False, comparator_entry=entry,
+                          signal_keep_clear=keep_clear)
     out["source"] = "simulated"
     return out
 
@@ -108,14 +118,24 @@ def _key(row: dict[str, Any]) -> tuple:
             int(float(row["density"])), int(float(row["seed"])), int(float(row["steps"])))
 
 
+def made_with_keep_clear(row: dict[str, Any]) -> bool:
+    """Whether a run's row was made with the signals' keep-clear rule: its
+    ``signal_keep_clear`` column; a row without it was made before the column was recorded,
+    when the rule was off by default."""
+    return str(row.get("signal_keep_clear") or "False").strip().lower() in ("true", "1")
+
+
 def load_rows(paths: Sequence[Path], model: str = "paper",
-              comparator_entry: str = "stop_clearance") -> dict[tuple, dict[str, Any]]:
+              comparator_entry: str = "stop_clearance",
+              signal_keep_clear: bool = SIGNAL_KEEP_CLEAR) -> dict[tuple, dict[str, Any]]:
     """Earlier runs by (scheme, rows, cols, density, seed, steps); a later path wins.
 
     Only runs of the env ``model`` are kept (a row without a ``model`` column ran the default,
-    ``"paper"``), and of the comparators only those with ``comparator_entry`` (a row without
-    the column ran the default, ``"stop_clearance"``; MiVeCC's runs do not depend on it). A
-    row without a ``source`` gets the path it was read from.
+    ``"paper"``), of the comparators only those with ``comparator_entry`` (a row without
+    the column ran the default, ``"stop_clearance"``; MiVeCC's runs do not depend on it), and
+    of the signal controllers only those made with ``signal_keep_clear`` as given (the
+    config's default; :func:`made_with_keep_clear`). A row without a ``source`` gets the path
+    it was read from.
     """
     out: dict[tuple, dict[str, Any]] = {}
     for path in paths:
@@ -128,6 +148,9 @@ def load_rows(paths: Sequence[Path], model: str = "paper",
                 if row["scheme"] in COMPARATORS and entry != comparator_entry:
                     continue
                 row["scheme"] = ALIASES.get(row["scheme"], row["scheme"])
+                if (row["scheme"] in SIGNAL_SCHEMES
+                        and made_with_keep_clear(row) != signal_keep_clear):
+                    continue
                 if not row.get("source"):
                     row["source"] = str(path)
                 out[_key(row)] = row
@@ -414,6 +437,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                    help="the comparators' entry rule (config comparator_entry; "
                    "docs/comparators.md: slowed enters at MiVeCC's clearance, slower where the "
                    "lane's last vehicle is close; default stop_clearance)")
+    p.add_argument("--signal-keep-clear", default=str(SIGNAL_KEEP_CLEAR).lower(),
+                   choices=("true", "false"),
+                   help="the signal controllers' keep-clear rule (config signal_keep_clear; "
+                   "docs/comparators.md, \"Keeping the box clear\"; default "
+                   f"{str(SIGNAL_KEEP_CLEAR).lower()}); runs reused from --from-csv must "
+                   "have been made with the same rule")
     p.add_argument("--out", type=Path, default=Path("docs/results/comparison"))
     args = p.parse_args(argv)
     cli_args.writable_dir("--out", args.out)
@@ -438,7 +467,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     grids = args.grids
     steps_for = _steps_for(args.steps_for, SCHEMES)
-    known = load_rows(args.from_csv, args.model, args.comparator_entry)
+    keep_clear = args.signal_keep_clear == "true"
+    known = load_rows(args.from_csv, args.model, args.comparator_entry, keep_clear)
     jobs, rows = [], []
     for (r, c) in grids:
         for d in args.densities:
@@ -451,7 +481,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     if key in known:
                         rows.append(known[key])
                     else:
-                        jobs.append((s, r, c, float(d), steps, seed, args.comparator_entry))
+                        jobs.append((s, r, c, float(d), steps, seed, args.comparator_entry,
+                                     keep_clear))
     if args.tabulate_only:
         jobs = []
     print(f"{len(rows)} runs reused, {len(jobs)} to simulate", flush=True)
@@ -472,7 +503,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     md = markdown(rows, grids, args.schemes, args.densities, args.comparator_entry)
     header = (f"Written by `{command}` from {len(rows)} runs (sources: "
               f"{', '.join(sorted({str(r.get('source') or '') for r in rows})) or 'none'}; "
-              "`simulated` = run by that command or an earlier one whose CSV it reused).\n")
+              "`simulated` = run by that command or an earlier one whose CSV it reused)"
+              f"{'' if keep_clear else '; the signal controllers without the keep-clear rule'}"
+              ".\n")
     (args.out / "comparison.md").write_text(header + "\n" + md + "\n", encoding="utf-8")
     for g in grids:
         plot(rows, g, args.schemes, args.densities, args.out / f"comparison_{g[0]}x{g[1]}.png",

@@ -2,7 +2,7 @@
 
 Every signal scheme (fixed-time, actuated, max-pressure, PA-DQN and Coder with their shipped
 policies; Coder on grids of at least 2x2) runs on the same seeded demand twice, with the rule
-off (the published runs' setting) and on; one markdown table per grid gives each scheme's
+off and on (the default since session 45); one markdown table per grid gives each scheme's
 strict collision events summed over the seeds and its mean average travel velocity and
 throughput, off -> on. Writes ``keep_clear.csv`` (every run) and ``keep_clear.md`` to ``--out``
 and prints the tables; one progress bar on stderr.
@@ -26,7 +26,9 @@ from mivecc_env import cli_args
 from mivecc_env.processes import map_jobs
 
 SCHEMES = ("fixed-time", "actuated", "max-pressure", "pa-dqn", "coder")
-KEYS = ("scheme", "rows", "cols", "density", "seed", "signal_keep_clear",
+#: Columns of ``keep_clear.csv`` (with ``steps``, it serves as a reference CSV of
+#: ``learned_policies.py`` for either rule).
+KEYS = ("scheme", "rows", "cols", "density", "seed", "steps", "signal_keep_clear",
         "avg_travel_velocity_mps", "collisions", "throughput", "backlog")
 
 

@@ -29,7 +29,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from comparison import add_run_options, runs_on, write_runs_and_tables
+from comparison import (
+    SIGNAL_KEEP_CLEAR,
+    SIGNAL_SCHEMES,
+    add_run_options,
+    made_with_keep_clear,
+    runs_on,
+    write_runs_and_tables,
+)
 
 from mivecc_agents.cli import parse_set_items
 from mivecc_env import cli_args
@@ -76,9 +83,11 @@ def reference_label(scheme: str) -> str:
     return f"MiVeCC-{scheme}" if scheme in ("E", "EE", "EEC") else f"{scheme} (committed)"
 
 
-def reference_runs(path: Path | None, schemes: Sequence[str], steps: int
-                   ) -> list[dict[str, Any]]:
-    """The runs of ``schemes`` of ``steps`` steps in a comparison CSV (none without a file)."""
+def reference_runs(path: Path | None, schemes: Sequence[str], steps: int,
+                   keep_clear: bool = SIGNAL_KEEP_CLEAR) -> list[dict[str, Any]]:
+    """The runs of ``schemes`` of ``steps`` steps in a comparison CSV (none without a file);
+    of the signal controllers only those made with the keep-clear rule ``keep_clear``, the
+    policies' (like for like)."""
     if path is None:
         return []
     with open(path, newline="", encoding="utf-8") as fh:
@@ -87,7 +96,8 @@ def reference_runs(path: Path | None, schemes: Sequence[str], steps: int
                  "seed": int(r["seed"]),
                  **{key: float(r[key]) for key in KEYS[5:]}}
                 for r in csv.DictReader(fh) if r["scheme"] in schemes
-                and int(r["steps"]) == steps]
+                and int(r["steps"]) == steps
+                and (r["scheme"] not in SIGNAL_SCHEMES or made_with_keep_clear(r) == keep_clear)]
 
 
 def tables(rows: list[dict[str, Any]], names: Sequence[str], grids: Sequence[tuple[int, int]],
@@ -172,12 +182,13 @@ def main(argv: Sequence[str] | None = None) -> str:
     p.add_argument("--reference", type=cli_args.existing_file,
                    default=Path("docs/results/comparison/comparison.csv"),
                    help="comparison CSV with the reference schemes' runs (default: the "
-                   "committed one)")
+                   "committed one); signal controllers' runs only where made with the "
+                   "policies' keep-clear rule")
     p.add_argument("--reference-schemes", nargs="+", default=["EEC"],
                    help="schemes of --reference shown beside the policies (default EEC)")
     p.add_argument("--set", dest="set_items", metavar="KEY=VALUE", nargs="+", default=[],
                    help="config fields of the policies' runs (not of the reference runs), "
-                   "e.g. signal_keep_clear=true")
+                   "e.g. signal_keep_clear=false")
     p.add_argument("--out", type=Path, default=Path("benchmarks/results/learned_policies"))
     args = p.parse_args(argv)
     overrides = parse_set_items(args.set_items)
@@ -196,7 +207,8 @@ def main(argv: Sequence[str] | None = None) -> str:
             for run in runs]
     for row in rows:
         row["density"] = int(row["density"])
-    reference = reference_runs(args.reference, args.reference_schemes, args.steps)
+    reference = reference_runs(args.reference, args.reference_schemes, args.steps,
+                               bool(overrides.get("signal_keep_clear", SIGNAL_KEEP_CLEAR)))
     labels = [*names, *(reference_label(s) for s in args.reference_schemes)]
     text = tables(rows + reference, labels, grids, args.densities, args.seeds)
     write_runs_and_tables(args.out, "learned_policies", KEYS, rows, "learned_policies.py", argv,

@@ -436,8 +436,8 @@ def _note_box_blocking(results: list[dict[str, Any]]) -> None:
     if events:
         print(f"{PROG}: note: {events:.0f} strict collision events under signals without the "
               "keep-clear rule; vehicles that drive into a blocked box collide there: rerun "
-              "with --set signal_keep_clear=true to tell them apart (docs/comparators.md, "
-              "\"Keeping the box clear\")", file=sys.stderr)
+              "with the rule (the default, signal_keep_clear=true) to tell them apart "
+              "(docs/comparators.md, \"Keeping the box clear\")", file=sys.stderr)
 
 
 def _evaluate_seeds(args: argparse.Namespace, overrides: dict[str, Any], seeds: list[int],

@@ -347,12 +347,13 @@ class MiVeCCConfig:
         "docs/comparators.md)",
     )
     signal_keep_clear: bool = _choice(
-        False, (False, True),
+        True, (True, False),
         "signalized: a vehicle stops at a green or yellow stop line (if it can, at "
         "idm_comfort_decel) while the queue past the box on its lane (the first vehicle "
         "slower than 1 m/s past its stop line among the 12 ahead) leaves no room for it and "
         "the vehicles before it, each vehicle_length + idm_min_gap, so no vehicle waits "
-        "inside the box (docs/comparators.md); default off: the published signal runs",
+        "inside the box (docs/comparators.md); false: vehicles may drive into a blocked box "
+        "and collide there (the signal runs published before this default)",
     )
     comparator_entry: ComparatorEntry = _choice(
         "stop_clearance", ("stop_clearance", "slowed"),

@@ -353,6 +353,18 @@ def test_comparison_runs_reuses_and_tabulates(tmp_path: Path) -> None:
     with open(tmp_path / "b" / "comparison.csv") as fh:
         assert [r["avg_travel_velocity_mps"] for r in csv.DictReader(fh)] == [
             r["avg_travel_velocity_mps"] for r in rows]
+    assert {r["signal_keep_clear"] for r in rows if r["scheme"] != "reservation"} == {"True"}
+    # without the keep-clear rule: the signal runs are made again (reservation's reused)
+    off = [*again[:-2], "--signal-keep-clear", "false", "--out", str(tmp_path / "c")]
+    assert comparison.main(off) == 0
+    with open(tmp_path / "c" / "comparison.csv") as fh:
+        made = {r["scheme"]: r for r in csv.DictReader(fh)}
+    first = {r["scheme"]: r for r in rows}
+    assert made["fixed-time"]["signal_keep_clear"] == made["max-pressure"][
+        "signal_keep_clear"] == "False"
+    assert made["reservation"]["wall_s"] == first["reservation"]["wall_s"]  # reused
+    assert made["fixed-time"]["wall_s"] != first["fixed-time"]["wall_s"]  # simulated again
+    assert "without the keep-clear rule" in (tmp_path / "c" / "comparison.md").read_text()
 
 
 
@@ -616,6 +628,14 @@ def test_learned_policies_puts_policies_beside_the_committed_runs(tmp_path: Path
     pa = committed["pa-dqn"]
     cell = f"{float(pa['avg_travel_velocity_mps']):.3f} / 0 / {float(pa['throughput']):.0f}"
     assert f"| 900 | {cell} | {cell} |" in text
+    # without the keep-clear rule: the committed runs (made with it) are not shown beside the
+    # policy, those of a CSV made without it are
+    off = ["--scheme", "pa-dqn", "--reference-schemes", "pa-dqn", "--set",
+           "signal_keep_clear=false", *args]
+    assert "pa-dqn (committed)" not in learned_policies.main(off)
+    text = learned_policies.main([*off, "--reference", str(
+        Path(comparison.__file__).parents[1] / "docs/results/keep_clear/keep_clear.csv")])
+    assert f"| 900 | {cell} | {cell} |" in text  # 1x1 at 900: the rule changes nothing
     for bad, message in ((["--policies", f"a={SHIPPED_PATH}", f"a={SHIPPED_PATH}"],
                           "--policies"),
                          (["--scheme", "coder"], "--grids: scheme coder runs on none")):

@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mivecc_env.config import MiVeCCConfig
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import comparison
@@ -178,10 +180,27 @@ def test_runs_are_reused_only_under_the_same_comparator_entry(tmp_path: Path) ->
         for scheme, entry in (("E", ""), ("fixed-time", ""), ("reservation", "slowed"),
                               ("max-pressure", "stop_clearance")):
             w.writerow([scheme, 1, 1, 900.0, 0, 3000, 9.0, 12.9, 0.0, 0.0, 1000.0, entry])
-    default = {k[0] for k in comparison.load_rows([path])}
-    slowed = {k[0] for k in comparison.load_rows([path], comparator_entry="slowed")}
+    # (rows without a signal_keep_clear column were made without the keep-clear rule)
+    default = {k[0] for k in comparison.load_rows([path], signal_keep_clear=False)}
+    slowed = {k[0] for k in comparison.load_rows([path], comparator_entry="slowed",
+                                                 signal_keep_clear=False)}
     assert default == {"E", "fixed-time", "max-pressure"}  # no column: the default rule
     assert slowed == {"E", "reservation"}  # MiVeCC's runs do not depend on it
+
+
+def test_signal_runs_are_reused_only_under_the_same_keep_clear_rule(tmp_path: Path) -> None:
+    path = tmp_path / "runs.csv"
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow([*FIELDS, "signal_keep_clear"])
+        for scheme, rule in (("E", ""), ("reservation", ""), ("fixed-time", ""),
+                             ("actuated", "True"), ("pa-dqn", "False"), ("coder", "True")):
+            w.writerow([scheme, 3, 3, 900.0, 0, 3000, 9.0, 12.9, 0.0, 0.0, 1000.0, rule])
+    assert comparison.SIGNAL_KEEP_CLEAR is MiVeCCConfig().signal_keep_clear is True
+    on = {k[0] for k in comparison.load_rows([path])}
+    off = {k[0] for k in comparison.load_rows([path], signal_keep_clear=False)}
+    assert on == {"E", "reservation", "actuated", "coder"}
+    assert off == {"E", "reservation", "fixed-time", "pa-dqn"}  # no column: made without it
 
 
 def test_comaddpg_runs_ignore_the_comparators_entry_rule() -> None:
@@ -212,5 +231,5 @@ def test_paper_tables_coder_runs_are_the_comparisons() -> None:
 
     table = runs(docs / "paper_table" / "paper_table.csv")
     assert len(table) == 21
-    assert table == runs(docs / "paper_table" / "coder_runs" / "paper_table.csv")
+    assert table == runs(docs / "paper_table" / "signal_runs" / "paper_table.csv")
     assert table == runs(docs / "comparison" / "comparison.csv")

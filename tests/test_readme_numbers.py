@@ -1443,8 +1443,9 @@ def _policy_cells(path: Path) -> dict:
 
 def test_signal_comparators_training_seeds_are_the_committed_runs() -> None:
     """docs/comparators.md, "Training seeds of the learned signal comparators": the places of
-    PA-DQN's and Coder's seeds among the signal controllers, Coder's collisions, EEC's lead,
-    and the keep-clear reruns; the shipped policies' runs equal the committed comparison's."""
+    PA-DQN's and Coder's seeds among the signal controllers with the keep-clear rule (the
+    default), EEC's lead, and the runs without the rule (Coder's collisions); the shipped
+    policies' runs equal the committed comparison's."""
     import comparison
 
     docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
@@ -1488,36 +1489,128 @@ def test_signal_comparators_training_seeds_are_the_committed_runs() -> None:
     assert all(pa3[s, d][0] > fixed[d]["velocity_mean_mps"] for s in seeds for d in DENSITIES)
     above_mp = [(s, d) for s in seeds for d in DENSITIES
                 if pa3[s, d][0] > ref["3x3", "max-pressure", d]["velocity_mean_mps"]]
-    assert above_mp == [("seed2", 1500)] and pa3["seed2", 1500][1] == 1
-    # Coder
-    assert [coder["seed1", d][1] for d in DENSITIES] == [0, 0, 8, 27, 26, 28, 23]
-    assert "112 strict events at 900-2100 veh/lane/h (8, 27, 26, 28, 23)" in docs
-    assert all(coder[s, d][1] == 0 for s in ("seed0", "seed2") for d in DENSITIES)
+    assert above_mp == [("seed2", 1500)]
+    assert (f"seed 2 at 1500: {pa3['seed2', 1500][0]:.3f} against "
+            f"{ref['3x3', 'max-pressure', 1500]['velocity_mean_mps']:.3f} m/s") in docs
+    # with the rule no policy collides
+    assert all(c[s, d][1] == 0 for c in (pa1, pa3, coder) for s in seeds for d in DENSITIES)
+    out = [round(coder[("seed1", d)][2]) for d in DENSITIES[3:]]
+    assert f"seed 1 has the fewest vehicles out from 1200 on ({min(out)}-{max(out)})" in docs
 
-    def lead(policy: str) -> str:
-        g = [100 * (ref["3x3", "EEC", d]["velocity_mean_mps"] / coder[policy, d][0] - 1)
+    def lead_of(cells: dict, policy: str) -> str:
+        g = [100 * (ref["3x3", "EEC", d]["velocity_mean_mps"] / cells[policy, d][0] - 1)
              for d in DENSITIES]
         return f"{min(g):.0f}-{max(g):.0f} %"
+
+    def lead(policy: str) -> str:
+        return lead_of(coder, policy)
 
     assert (f"{lead('seed0')} with the shipped seed, {lead('seed1')} with seed 1 and "
             f"{lead('seed2')} with seed 2") in docs
     text = " ".join(RESULTS.split())
-    assert (f"with seeds 1 and 2 EEC leads by {lead('seed1')[:-2]} % and {lead('seed2')[:-2]} %, "
-            "and seed 1 collides (112 strict events") in text
-    # keep-clear: every policy collision-free, the others' runs unchanged
-    coder_kc = _policy_cells(results / "coder" / "training_seeds" / "keep_clear" /
-                             "learned_policies.csv")
-    pa3_kc = _policy_cells(results / "pa_dqn" / "training_seeds" / "3x3_keep_clear" /
-                           "learned_policies.csv")
-    assert all(c[s, d][1] == 0 for c in (coder_kc, pa3_kc) for s in seeds for d in DENSITIES)
-    assert all(coder_kc[s, d] == coder[s, d] for s in ("seed0", "seed2") for d in DENSITIES)
-    assert all(pa3_kc[s, d] == pa3[s, d] for s in ("seed0", "seed1") for d in DENSITIES)
-    moved = max(abs(pa3_kc["seed2", d][0] - pa3["seed2", d][0]) for d in DENSITIES)
+    assert (f"with seeds 1 and 2 EEC leads by {lead('seed1')[:-2]} % and "
+            f"{lead('seed2')[:-2]} %;") in text
+    # without the rule: Coder's seed 1 and PA-DQN's seed 2 collide, the others' runs unchanged
+    pa1_off, pa3_off, coder_off = (_policy_cells(results / folder / "learned_policies.csv")
+                                   for folder in ("pa_dqn/training_seeds/1x1_without_keep_clear",
+                                                  "pa_dqn/training_seeds/3x3_without_keep_clear",
+                                                  "coder/training_seeds/without_keep_clear"))
+    assert [coder_off["seed1", d][1] for d in DENSITIES] == [0, 0, 8, 27, 26, 28, 23]
+    assert "112 strict events at 900-2100 veh/lane/h (8, 27, 26, 28, 23)" in docs
+    assert "without the keep-clear rule (`--set signal_keep_clear=false`) seed 1 collides, 112" \
+        in text
+    assert [(s, d) for s in seeds for d in DENSITIES if pa3_off[s, d][1]] == [("seed2", 1500)]
+    assert pa1_off == pa1
+    assert all(coder_off[s, d] == coder[s, d] for s in ("seed0", "seed2") for d in DENSITIES)
+    assert all(pa3_off[s, d] == pa3[s, d] for s in ("seed0", "seed1") for d in DENSITIES)
+    moved = max(abs(pa3_off["seed2", d][0] - pa3["seed2", d][0]) for d in DENSITIES)
     assert f"(its mean velocity moves by at most {moved:.3f} m/s)" in docs
-    out = [round(coder[("seed1", d)][2]) for d in DENSITIES[3:]]
-    out_kc = [round(coder_kc[("seed1", d)][2]) for d in DENSITIES[3:]]
-    assert (f"from {min(out)}-{max(out)} to {min(out_kc)}-{max(out_kc)} vehicles out at "
-            "1200-2100") in docs
+    out_off = [round(coder_off[("seed1", d)][2]) for d in DENSITIES[3:]]
+    assert (f"from {min(out_off)}-{max(out_off)} vehicles out at 1200-2100 instead of "
+            f"{min(out)}-{max(out)} (EEC's lead {lead_of(coder_off, 'seed1')})") in docs
+
+
+def test_signal_policies_trained_with_keep_clear_and_on_another_cpu() -> None:
+    """docs/comparators.md, "Signal policies trained with the keep-clear rule, and on another
+    CPU": the four retrained policies beside the shipped ones, their logs against the shipped
+    logs, EEC's lead over each Coder."""
+    import csv
+
+    import comparison
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    results = ROOT / "docs" / "results"
+    rows = list(comparison.load_rows([results / "comparison" / "comparison.csv"]).values())
+    table = comparison.summarise(rows, [(3, 3)], ["EEC", "fixed-time", "actuated",
+                                                  "max-pressure", "pa-dqn", "coder"], DENSITIES)
+    ref = {(t["scheme"], t["density"]): t for t in table}
+    pa = _policy_cells(results / "pa_dqn" / "trained_with_keep_clear_3x3" / "learned_policies.csv")
+    coder = _policy_cells(results / "coder" / "trained_with_keep_clear" / "learned_policies.csv")
+    names = ("shipped", "xeon_without_rule", "xeon_with_rule")
+    for scheme, cells in (("pa-dqn", pa), ("coder", coder)):  # the shipped files' runs
+        assert all(cells["shipped", d][0] == pytest.approx(ref[scheme, d]["velocity_mean_mps"],
+                                                           abs=1e-12) for d in DENSITIES)
+    assert all(c[n, d][1] == 0 for c in (pa, coder) for n in names for d in DENSITIES)
+
+    def log(path: Path) -> list[dict]:
+        with open(path, newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+
+    def last_ten(rows: list[dict], key: str, digits: int) -> str:
+        values = [float(r[key]) for r in rows[-10:]]
+        return f"{min(values):.{digits}f}-{max(values):.{digits}f}"
+
+    for folder, shipped in (("pa_dqn/trained_with_keep_clear_3x3", "pa_dqn/train_3x3"),
+                            ("coder/trained_with_keep_clear", "coder/train_3x3")):
+        off, on, ref_log = (log(results / f / "train_log.csv") for f in (
+            f"{folder}/without_rule", f"{folder}/with_rule", shipped))
+        first = {k for k in off[0] if off[0][k] != ref_log[0][k]}
+        assert first == {"loss", "wall_s"}  # the first episode: only the loss (and the clock)
+        assert off[0]["throughput"] != on[0]["throughput"]
+        assert f"{float(on[0]['throughput']):.1f} against {float(off[0]['throughput']):.1f}" \
+            in docs
+    pa_off, pa_ref = (log(results / f / "train_log.csv") for f in (
+        "pa_dqn/trained_with_keep_clear_3x3/without_rule", "pa_dqn/train_3x3"))
+    assert (f"reward per decision {last_ten(pa_off, 'reward_per_decision', 2)}, throughput "
+            f"{last_ten(pa_off, 'throughput', 0)} vehicles per environment, against "
+            f"{last_ten(pa_ref, 'reward_per_decision', 2)} and "
+            f"{last_ten(pa_ref, 'throughput', 0)}") in docs
+    coder_off, coder_ref = (log(results / f / "train_log.csv") for f in (
+        "coder/trained_with_keep_clear/without_rule", "coder/train_3x3"))
+    assert (f"throughput {last_ten(coder_off, 'throughput', 0)} against "
+            f"{last_ten(coder_ref, 'throughput', 0)} over the last ten episodes") in docs
+    # PA-DQN without the rule: faster from 1200 on, fewer vehicles out at 2100
+    assert all(pa["xeon_without_rule", d][0] > pa["shipped", d][0] for d in DENSITIES[3:])
+    assert (f"({pa['xeon_without_rule', 2100][0]:.2f} against {pa['shipped', 2100][0]:.2f} m/s "
+            f"at 2100) with fewer vehicles out ({pa['xeon_without_rule', 2100][2]:.0f} against "
+            f"{pa['shipped', 2100][2]:.0f})") in docs
+    # PA-DQN with the rule: fastest signal controller at 1500 and 2100, fewer out from 1200
+    others = ("fixed-time", "actuated", "max-pressure")
+    for d in (1500, 2100):
+        assert pa["xeon_with_rule", d][0] == max(
+            [pa[n, d][0] for n in names] + [ref[s, d]["velocity_mean_mps"] for s in others])
+    assert all(pa["xeon_with_rule", d][2] < min(pa["shipped", d][2], pa["xeon_without_rule", d][2])
+               for d in DENSITIES[3:])
+    # Coder: vehicles out, EEC's lead
+    def out_span(name: str) -> str:
+        out = [coder[name, d][2] for d in DENSITIES]
+        return f"{min(out):.0f}-{max(out):.0f}"
+
+    assert f"({out_span('xeon_without_rule')} against {out_span('shipped')})" in docs
+    assert f"control at every density ({out_span('xeon_with_rule')})" in docs
+    assert all(coder["xeon_with_rule", d][2] > coder["xeon_without_rule", d][2]
+               for d in DENSITIES)
+    assert all(coder["xeon_with_rule", d][0] < coder["shipped", d][0] for d in DENSITIES[3:])
+
+    def lead(name: str) -> str:
+        g = [100 * (ref["EEC", d]["velocity_mean_mps"] / coder[name, d][0] - 1)
+             for d in DENSITIES]
+        return f"{min(g):.0f}-{max(g):.0f} %"
+
+    assert (f"lead over it is {lead('xeon_without_rule')} (the shipped policy: "
+            f"{lead('shipped')})") in docs
+    assert f"EEC leads it by {lead('xeon_with_rule')}" in docs
+    assert f"(EEC's lead {lead('xeon_without_rule')};" in " ".join(RESULTS.split())
 
 
 def test_comaddpg_wide_critic_is_the_committed_runs() -> None:

@@ -296,14 +296,14 @@ def test_evaluate_notes_signal_collisions_without_keep_clear(capsys) -> None:
             "training_seeds" / "seed1" / "coder.pt")
     argv = ["evaluate", "--scheme", "coder", "--signal-checkpoint", str(path), "--density",
             "1200", "--seed", "0", "--json", "--no-progress"]
-    assert cli.main(argv) == 0
+    assert cli.main([*argv, "--set", "signal_keep_clear=false"]) == 0
     captured = capsys.readouterr()
     assert json.loads(captured.out)["collisions"] == 8
     assert captured.err.strip() == (
         "mivecc: note: 8 strict collision events under signals without the keep-clear rule; "
-        "vehicles that drive into a blocked box collide there: rerun with --set "
-        "signal_keep_clear=true to tell them apart (docs/comparators.md, \"Keeping the box "
-        "clear\")")
-    assert cli.main([*argv, "--set", "signal_keep_clear=true"]) == 0
+        "vehicles that drive into a blocked box collide there: rerun with the rule (the "
+        "default, signal_keep_clear=true) to tell them apart (docs/comparators.md, \"Keeping "
+        "the box clear\")")
+    assert cli.main(argv) == 0  # the rule is on by default
     captured = capsys.readouterr()
     assert json.loads(captured.out)["collisions"] == 0 and captured.err == ""

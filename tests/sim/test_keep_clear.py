@@ -1,5 +1,5 @@
-"""The signals' keep-clear rule (``signal_keep_clear``): off by default (the published runs);
-on, no vehicle waits inside a box and the two traced box-blocking collisions are gone
+"""The signals' keep-clear rule (``signal_keep_clear``, on by default): no vehicle waits inside a
+box and the two traced box-blocking collisions of the rule's absence are gone
 (docs/comparators.md, "Keeping the box clear")."""
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ from mivecc_env.sim import signals
 from mivecc_env.sim.core import Simulator
 
 
-def test_off_by_default() -> None:
-    assert MiVeCCConfig().signal_keep_clear is False
+def test_on_by_default() -> None:
+    assert MiVeCCConfig().signal_keep_clear is True
+    assert evaluate_scheme("fixed-time", 1, 1, 300, 5, 0, progress=False)["signal_keep_clear"]
 
 
 def test_the_actuated_box_blocking_collision_is_gone() -> None:
