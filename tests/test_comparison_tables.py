@@ -172,14 +172,19 @@ def test_a_zero_backlog_of_a_fresh_run_is_zero_not_missing() -> None:
     assert np.isnan(t["backlog_mean"]) and np.isnan(t["entered_share"])
 
 
-def test_runs_are_reused_only_under_the_same_comparator_entry(tmp_path: Path) -> None:
-    path = tmp_path / "runs.csv"
+def _write_tagged(path: Path, column: str, tags: dict[str, str]) -> Path:
+    """One run per scheme (3x3, 900 veh/lane/h, seed 0) with its value of an extra column."""
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow([*FIELDS, "comparator_entry"])
-        for scheme, entry in (("E", ""), ("fixed-time", ""), ("reservation", "slowed"),
-                              ("max-pressure", "stop_clearance")):
-            w.writerow([scheme, 1, 1, 900.0, 0, 3000, 9.0, 12.9, 0.0, 0.0, 1000.0, entry])
+        w.writerow([*FIELDS, column])
+        for scheme, tag in tags.items():
+            w.writerow([scheme, 3, 3, 900.0, 0, 3000, 9.0, 12.9, 0.0, 0.0, 1000.0, tag])
+    return path
+
+
+def test_runs_are_reused_only_under_the_same_comparator_entry(tmp_path: Path) -> None:
+    path = _write_tagged(tmp_path / "runs.csv", "comparator_entry", {
+        "E": "", "fixed-time": "", "reservation": "slowed", "max-pressure": "stop_clearance"})
     # (rows without a signal_keep_clear column were made without the keep-clear rule)
     default = {k[0] for k in comparison.load_rows([path], signal_keep_clear=False)}
     slowed = {k[0] for k in comparison.load_rows([path], comparator_entry="slowed",
@@ -189,13 +194,9 @@ def test_runs_are_reused_only_under_the_same_comparator_entry(tmp_path: Path) ->
 
 
 def test_signal_runs_are_reused_only_under_the_same_keep_clear_rule(tmp_path: Path) -> None:
-    path = tmp_path / "runs.csv"
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow([*FIELDS, "signal_keep_clear"])
-        for scheme, rule in (("E", ""), ("reservation", ""), ("fixed-time", ""),
-                             ("actuated", "True"), ("pa-dqn", "False"), ("coder", "True")):
-            w.writerow([scheme, 3, 3, 900.0, 0, 3000, 9.0, 12.9, 0.0, 0.0, 1000.0, rule])
+    path = _write_tagged(tmp_path / "runs.csv", "signal_keep_clear", {
+        "E": "", "reservation": "", "fixed-time": "", "actuated": "True", "pa-dqn": "False",
+        "coder": "True"})
     assert comparison.SIGNAL_KEEP_CLEAR is MiVeCCConfig().signal_keep_clear is True
     on = {k[0] for k in comparison.load_rows([path])}
     off = {k[0] for k in comparison.load_rows([path], signal_keep_clear=False)}
