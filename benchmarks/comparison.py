@@ -78,7 +78,7 @@ TABLE_KEYS = ("grid", "density", "scheme", "runs", "seeds", "steps", "velocity_m
               "entered_share", "source")
 
 
-def _run(job: tuple[str, int, int, float, int, int, str]) -> dict[str, Any]:
+def _run(job: tuple[str, int, int, float, int, int, str, bool]) -> dict[str, Any]:
     import os
 
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # before torch: one thread per episode
