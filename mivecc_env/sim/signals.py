@@ -92,7 +92,8 @@ def signalized_accel(
     can_stop = dist >= v * v / (2.0 * c.idm_comfort_decel_mps2)
     stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
     if c.signal_keep_clear:  # do not enter a box the vehicle may not leave
-        stop |= has_stop & can_stop & _box_blocked(s, v, leader, line, c)
+        asked = np.flatnonzero(has_stop & can_stop & ~stop)  # the others stop anyway or cannot
+        stop[asked] = _box_blocked(asked, s, v, leader, line[asked], c)
     a_line = idm_accel(v, np.where(stop, dist, np.inf), np.zeros_like(v), c)
     a = np.minimum(a, np.where(stop, a_line, np.inf))
     return np.clip(a, -c.idm_max_decel_mps2, c.a_max_mps2)
@@ -104,9 +105,10 @@ QUEUED_MPS = 1.0
 QUEUE_LOOKAHEAD = 12
 
 
-def _box_blocked(s: FloatArray, v: FloatArray, leader: IntArray, line: FloatArray,
-                 c: MiVeCCConfig) -> NDArray[np.bool_]:
-    """Whether each vehicle's lane lacks room for it past the box ahead (``signal_keep_clear``).
+def _box_blocked(asked: IntArray, s: FloatArray, v: FloatArray, leader: IntArray,
+                 line: FloatArray, c: MiVeCCConfig) -> NDArray[np.bool_]:
+    """Whether each vehicle ``asked`` (indices into ``s``, ``v``, ``leader``; ``line``: its stop
+    line [m]) lacks room on its lane past the box ahead (``signal_keep_clear``).
 
     Along the vehicles ahead on its lane (up to :data:`QUEUE_LOOKAHEAD`), the first one past the
     vehicle's stop line that is slower than :data:`QUEUED_MPS` is the tail of a queue (one still
@@ -117,13 +119,15 @@ def _box_blocked(s: FloatArray, v: FloatArray, leader: IntArray, line: FloatArra
     """
     length, slot = c.vehicle_length_m, c.vehicle_length_m + c.idm_min_gap_m
     box_exit = line + 2.0 * stop_line_offset_m(c)
-    n = s.size
-    ahead = leader.copy()
+    n = asked.size
+    ahead = leader[asked]
     between = np.zeros(n, dtype=np.int64)
     tail_rear = np.full(n, np.inf)
     open_ = np.ones(n, dtype=bool)
     for _ in range(QUEUE_LOOKAHEAD):
         valid = open_ & (ahead >= 0)
+        if not valid.any():  # every chain ended: at a queue's tail or the lane's first vehicle
+            break
         k = np.maximum(ahead, 0)
         queued = valid & (s[k] >= line) & (v[k] < QUEUED_MPS)
         tail_rear = np.where(queued, s[k] - length, tail_rear)
