@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from mivecc_env.config import MiVeCCConfig
+from mivecc_env.sim import step_kernels
 
 if TYPE_CHECKING:
     from mivecc_env.sim.core import Simulator
@@ -93,7 +94,7 @@ def signalized_accel(
     stop = has_stop & ((state == RED) | ((state == YELLOW) & can_stop))
     if c.signal_keep_clear:  # do not enter a box the vehicle may not leave
         asked = np.flatnonzero(has_stop & can_stop & ~stop)  # the others stop anyway or cannot
-        stop[asked] = _box_blocked(asked, s, v, leader, line[asked], c)
+        stop[asked] = box_blocked(asked, s, v, leader, line[asked], c)
     a_line = idm_accel(v, np.where(stop, dist, np.inf), np.zeros_like(v), c)
     a = np.minimum(a, np.where(stop, a_line, np.inf))
     return np.clip(a, -c.idm_max_decel_mps2, c.a_max_mps2)
@@ -105,10 +106,21 @@ QUEUED_MPS = 1.0
 QUEUE_LOOKAHEAD = 12
 
 
-def _box_blocked(asked: IntArray, s: FloatArray, v: FloatArray, leader: IntArray,
-                 line: FloatArray, c: MiVeCCConfig) -> NDArray[np.bool_]:
+def box_blocked(asked: IntArray, s: FloatArray, v: FloatArray, leader: IntArray,
+                line: FloatArray, c: MiVeCCConfig) -> NDArray[np.bool_]:
     """Whether each vehicle ``asked`` (indices into ``s``, ``v``, ``leader``; ``line``: its stop
-    line [m]) lacks room on its lane past the box ahead (``signal_keep_clear``).
+    line [m]) lacks room on its lane past the box ahead (``signal_keep_clear``): the compiled
+    kernel (``step_kernels.box_blocked``), or without numba :func:`box_blocked_reference`."""
+    box_exit = line + 2.0 * stop_line_offset_m(c)
+    fast = step_kernels.box_blocked(asked, s, v, leader, line, box_exit, c.vehicle_length_m,
+                                    c.vehicle_length_m + c.idm_min_gap_m, QUEUED_MPS,
+                                    QUEUE_LOOKAHEAD)
+    return box_blocked_reference(asked, s, v, leader, line, c) if fast is None else fast
+
+
+def box_blocked_reference(asked: IntArray, s: FloatArray, v: FloatArray, leader: IntArray,
+                          line: FloatArray, c: MiVeCCConfig) -> NDArray[np.bool_]:
+    """:func:`box_blocked` in numpy (the reference of the compiled kernel).
 
     Along the vehicles ahead on its lane (up to :data:`QUEUE_LOOKAHEAD`), the first one past the
     vehicle's stop line that is slower than :data:`QUEUED_MPS` is the tail of a queue (one still

@@ -13,7 +13,9 @@
   ``Simulator._enter_vehicles``); :func:`advance_arrivals` - the counting loop
   of ``ArrivalProcess.advance``;
 * :func:`record_exits` / :func:`record_passing` - trip and passing-time accumulators
-  (references: ``Simulator._record_exits``, ``PassingTimes.record``).
+  (references: ``Simulator._record_exits``, ``PassingTimes.record``);
+* :func:`box_blocked` - the signals' keep-clear check, each vehicle's walk along its leaders
+  (reference: ``mivecc_env.sim.signals.box_blocked_reference``).
 
 Only comparisons and the reference's own float operations (same operands, same order, IEEE
 arithmetic, no fast-math) are used, so the results are bit-identical; the tests compare each
@@ -697,3 +699,39 @@ def record_exits(
     _record_exits(out, env, vehicle, lane, s_old, s_new, lane_length, t0, t1, t_arrive,
                   t_enter, active, sums, exited, n_out)
     return n_out
+
+
+@njit
+def _box_blocked(asked, s, v, leader, line, box_exit, length, slot, queued_mps,
+                 lookahead):  # pragma: no cover
+    out = np.empty(asked.size, dtype=np.bool_)
+    for j in range(asked.size):
+        ahead = leader[asked[j]]
+        between = 0
+        tail_rear = np.inf
+        for _ in range(lookahead):
+            if ahead < 0:
+                break
+            if s[ahead] >= line[j] and v[ahead] < queued_mps:
+                tail_rear = s[ahead] - length
+                break
+            between += 1
+            ahead = leader[ahead]
+        out[j] = tail_rear - box_exit[j] < (between + 1) * slot
+    return out
+
+
+def box_blocked(
+    asked: NDArray[np.int64], s: NDArray[np.float64], v: NDArray[np.float64],
+    leader: NDArray[np.int64], line: NDArray[np.float64], box_exit: NDArray[np.float64],
+    length: float, slot: float, queued_mps: float, lookahead: int,
+) -> NDArray[np.bool_] | None:
+    """``signals.box_blocked_reference`` compiled: for each vehicle ``asked`` (view indices),
+    whether the room between its box exit (``box_exit`` [m]) and the rear of the first vehicle
+    ahead past its stop line (``line`` [m]) slower than ``queued_mps`` [m/s], among
+    ``lookahead`` leaders, cannot take the vehicles before that one and itself, ``slot`` [m]
+    each. None when numba is missing."""
+    if not HAVE_NUMBA:
+        return None
+    return _box_blocked(asked, s, v, leader, line, box_exit, float(length), float(slot),
+                        float(queued_mps), int(lookahead))
