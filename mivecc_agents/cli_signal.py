@@ -190,5 +190,11 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     path = policy.save(out / checkpoint)  # its settings say how it was trained
     logs.write_log(log, out / "train_log.csv")
     logs.plot_learning_curve(log, out / "learning_curve.png")
+    if args.train_command == "train-coder":
+        from mivecc_agents.coder import aggregation_shortfall
+
+        note = aggregation_shortfall(log)
+        if note:
+            print(f"{PROG}: {note}", file=sys.stderr)
     print(path)
     return 0

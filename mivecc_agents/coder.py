@@ -36,7 +36,7 @@ A trained policy is :class:`CoderPolicy`; ``mivecc evaluate --scheme coder`` run
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +77,11 @@ REGION_SIZE = 4
 REGION_ACTIONS = signal_agents.N_PHASES ** REGION_SIZE
 #: First training seed of the aggregation stage (apart from the regional stage's).
 AGGREGATION_SEED_OFFSET = 500_000
+#: ``mivecc train-coder`` warns when the aggregation stage's last episodes moved fewer vehicles
+#: than this share of the regional stage's last ones (:func:`aggregation_shortfall`) ...
+AGGREGATION_WARN_SHARE = 0.9
+#: ... over this many episodes at the end of each stage.
+AGGREGATION_WARN_EPISODES = 5
 #: Aggregation output before the softplus that gives a weight of 1 (log(e - 1)).
 _UNIT_WEIGHT_LOGIT = math.log(math.e - 1.0)
 
@@ -280,6 +285,29 @@ class CoderPolicy:
             settings = dict(data["settings"])
             check_coder_grid(int(settings["rows"]), int(settings["cols"]))
         return cls(regional, aggregation, period, settings, checkpoint=str(path))
+
+
+def aggregation_shortfall(log: Sequence[Mapping[str, float]]) -> str | None:
+    """A one-line warning when the aggregation stage ended moving fewer vehicles than the
+    regional stage: the mean ``throughput`` (vehicles out per training environment) of the last
+    :data:`AGGREGATION_WARN_EPISODES` episodes of each ``stage`` of a training log, the second
+    below :data:`AGGREGATION_WARN_SHARE` of the first; None otherwise or without both stages.
+
+    Both stages explore (their own epsilon), so this is a coarse check: it flags a collapsed
+    aggregation such as the one in docs/comparators.md, "Signal policies trained with the
+    keep-clear rule, and on another CPU", not a small shortfall."""
+    regional, aggregated = ([float(r["throughput"]) for r in log if int(r["stage"]) == stage]
+                            [-AGGREGATION_WARN_EPISODES:] for stage in (1, 2))
+    if not regional or not aggregated:
+        return None
+    before, after = float(np.mean(regional)), float(np.mean(aggregated))
+    if after >= AGGREGATION_WARN_SHARE * before:
+        return None
+    return (f"warning: the aggregation stage's last {len(aggregated)} episodes moved "
+            f"{after:.0f} vehicles per training environment, {100 * after / before:.0f} % of "
+            f"the regional stage's {before:.0f}: the aggregation may have collapsed; evaluate "
+            "the policy before using it (docs/comparators.md, \"Signal policies trained with "
+            "the keep-clear rule, and on another CPU\")")
 
 
 def train_coder(settings: CoderSettings,

@@ -307,3 +307,45 @@ def test_evaluate_notes_signal_collisions_without_keep_clear(capsys) -> None:
     assert cli.main(argv) == 0  # the rule is on by default
     captured = capsys.readouterr()
     assert json.loads(captured.out)["collisions"] == 0 and captured.err == ""
+
+
+def test_a_collapsed_aggregation_stage_is_named() -> None:
+    # the committed training logs: the shipped policy's, seeds 1 and 2, the Xeon retrainings
+    # with and without the keep-clear rule; only the last one's aggregation collapsed
+    # (docs/comparators.md, "Signal policies trained with the keep-clear rule, and on another
+    # CPU")
+    import csv
+
+    from mivecc_agents.coder import aggregation_shortfall
+
+    results = Path(__file__).resolve().parents[2] / "docs" / "results" / "coder"
+
+    def note(folder: str) -> str | None:
+        with open(results / folder / "train_log.csv", newline="", encoding="utf-8") as fh:
+            return aggregation_shortfall(list(csv.DictReader(fh)))
+
+    for folder in ("train_3x3", "training_seeds/seed1", "training_seeds/seed2",
+                   "trained_with_keep_clear/with_rule"):
+        assert note(folder) is None, folder
+    assert note("trained_with_keep_clear/without_rule").startswith(
+        "warning: the aggregation stage's last 5 episodes moved 385 vehicles per training "
+        "environment, 78 % of the regional stage's 493: the aggregation may have collapsed")
+    assert aggregation_shortfall([{"stage": 1, "throughput": 400.0}]) is None  # one stage only
+
+
+def test_command_line_warns_of_a_collapsed_aggregation(tmp_path, capsys, monkeypatch) -> None:
+    from mivecc_agents import coder
+
+    trained = coder.train_coder
+
+    def collapsed(settings, on_episode=None):
+        policy, log = trained(settings, on_episode)
+        return policy, [{**row, "throughput": 100.0 * (3 - row["stage"])} for row in log]
+
+    monkeypatch.setattr(coder, "train_coder", collapsed)
+    assert cli.main(["train-coder", "--out", str(tmp_path), "--episodes", "1",
+                     "--global-episodes", "1", "--batch", "1", "--episode-steps", "200",
+                     "--warmup", "1", "--densities", "900", "--rows", "2", "--cols", "2"]) == 0
+    err = capsys.readouterr().err
+    assert ("mivecc: warning: the aggregation stage's last 1 episodes moved 100 vehicles per "
+            "training environment, 50 % of the regional stage's 200") in err
