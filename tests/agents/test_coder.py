@@ -312,8 +312,8 @@ def test_evaluate_notes_signal_collisions_without_keep_clear(capsys) -> None:
 def test_a_collapsed_aggregation_stage_is_named() -> None:
     # the committed training logs: the shipped policy's, seeds 1 and 2, the Xeon retrainings
     # with and without the keep-clear rule; only the last one's aggregation collapsed
-    # (docs/comparators.md, "Signal policies trained with the keep-clear rule, and on another
-    # CPU")
+    # (docs/comparators.md,
+    # "Signal policies trained with the keep-clear rule, and on another CPU")
     import csv
 
     from mivecc_agents.coder import aggregation_shortfall
