@@ -191,9 +191,9 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     logs.write_log(log, out / "train_log.csv")
     logs.plot_learning_curve(log, out / "learning_curve.png")
     if args.train_command == "train-coder":
-        from mivecc_agents.coder import aggregation_shortfall
+        from mivecc_agents.coder import training_shortfall
 
-        note = aggregation_shortfall(log)
+        note = training_shortfall(log)
         if note:
             print(f"{PROG}: {note}", file=sys.stderr)
     print(path)

@@ -78,10 +78,10 @@ REGION_ACTIONS = signal_agents.N_PHASES ** REGION_SIZE
 #: First training seed of the aggregation stage (apart from the regional stage's).
 AGGREGATION_SEED_OFFSET = 500_000
 #: ``mivecc train-coder`` warns when the aggregation stage's last episodes moved fewer vehicles
-#: than this share of the regional stage's last ones (:func:`aggregation_shortfall`) ...
-AGGREGATION_WARN_SHARE = 0.9
+#: than this share of the regional stage's last ones (:func:`training_shortfall`) ...
+SHORTFALL_SHARE = 0.9
 #: ... over this many episodes at the end of each stage.
-AGGREGATION_WARN_EPISODES = 5
+SHORTFALL_EPISODES = 5
 #: Aggregation output before the softplus that gives a weight of 1 (log(e - 1)).
 _UNIT_WEIGHT_LOGIT = math.log(math.e - 1.0)
 
@@ -216,11 +216,12 @@ class CoderPolicy:
     #: The evaluation scheme this policy is for.
     scheme = "coder"
 
-    def __init__(self, regional: SignalQNetwork, aggregation: AggregationNetwork,
+    def __init__(self, regional: SignalQNetwork, aggregation: AggregationNetwork | None,
                  decision_period_s: float, settings: dict[str, Any], checkpoint: str = "",
                  rows: int | None = None, cols: int | None = None) -> None:
         self.regional = regional.eval()
-        self.aggregation = aggregation.eval()
+        #: None: the plain sum of the regional values (:meth:`without_aggregation`).
+        self.aggregation = None if aggregation is None else aggregation.eval()
         self.decision_period_s = float(decision_period_s)
         self.settings = settings
         self.checkpoint = checkpoint
@@ -240,6 +241,13 @@ class CoderPolicy:
         return CoderPolicy(self.regional, self.aggregation, self.decision_period_s,
                            self.settings, self.checkpoint, rows, cols)
 
+    def without_aggregation(self) -> CoderPolicy:
+        """The same regional network deciding on the plain sum of its regions' values (every
+        weight 1, as in the regional training stage): tells a regional network's decisions
+        from the aggregation's."""
+        return CoderPolicy(self.regional, None, self.decision_period_s, self.settings,
+                           self.checkpoint, self.rows, self.cols)
+
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         arr = np.asarray(obs, dtype=np.float32)
         n_int = self.rows * self.cols
@@ -255,7 +263,10 @@ class CoderPolicy:
         return self._phases[best].astype(np.int64)
 
     def save(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
-        """Write the policy as a mivecc checkpoint (``kind="coder"``)."""
+        """Write the policy as a mivecc checkpoint (``kind="coder"``); not one without its
+        aggregation network."""
+        if self.aggregation is None:
+            raise ValueError("a Coder policy without its aggregation network is not saved")
         return save_checkpoint(path, {
             "kind": CODER_KIND, "decision_period_s": self.decision_period_s,
             "hidden": self.regional.net[0].out_features,
@@ -287,27 +298,30 @@ class CoderPolicy:
         return cls(regional, aggregation, period, settings, checkpoint=str(path))
 
 
-def aggregation_shortfall(log: Sequence[Mapping[str, float]]) -> str | None:
-    """A one-line warning when the aggregation stage ended moving fewer vehicles than the
-    regional stage: the mean ``throughput`` (vehicles out per training environment) of the last
-    :data:`AGGREGATION_WARN_EPISODES` episodes of each ``stage`` of a training log, the second
-    below :data:`AGGREGATION_WARN_SHARE` of the first; None otherwise or without both stages.
+def training_shortfall(log: Sequence[Mapping[str, float]]) -> str | None:
+    """A one-line warning when a training ended with networks that move fewer vehicles than its
+    regional stage did: the mean ``throughput`` (vehicles out per training environment) of the
+    last :data:`SHORTFALL_EPISODES` episodes of each ``stage`` of a training log, the
+    aggregation stage's (which acts with the final, frozen regional network) below
+    :data:`SHORTFALL_SHARE` of the regional stage's; None otherwise or without both stages.
 
-    Both stages explore (their own epsilon), so this is a coarse check: it flags a collapsed
-    aggregation such as the one in docs/comparators.md, "Signal policies trained with the
-    keep-clear rule, and on another CPU", not a small shortfall."""
+    Both stages explore (their own epsilon), so this is a coarse check: it flags a training such
+    as the one in docs/comparators.md, "Signal policies trained with the keep-clear rule, and
+    on another CPU", whose final regional network does far worse than the regional stage's
+    episodes did, not a small shortfall."""
     regional, aggregated = ([float(r["throughput"]) for r in log if int(r["stage"]) == stage]
-                            [-AGGREGATION_WARN_EPISODES:] for stage in (1, 2))
+                            [-SHORTFALL_EPISODES:] for stage in (1, 2))
     if not regional or not aggregated:
         return None
     before, after = float(np.mean(regional)), float(np.mean(aggregated))
-    if after >= AGGREGATION_WARN_SHARE * before:
+    if after >= SHORTFALL_SHARE * before:
         return None
     return (f"warning: the aggregation stage's last {len(aggregated)} episodes moved "
             f"{after:.0f} vehicles per training environment, {100 * after / before:.0f} % of "
-            f"the regional stage's {before:.0f}: the aggregation may have collapsed; evaluate "
-            "the policy before using it (docs/comparators.md, \"Signal policies trained with "
-            "the keep-clear rule, and on another CPU\")")
+            f"the regional stage's {before:.0f}: the networks the training ended with do worse "
+            "than its regional stage did; evaluate the policy before using it "
+            "(docs/comparators.md, \"Signal policies trained with the keep-clear rule, and on "
+            "another CPU\")")
 
 
 def train_coder(settings: CoderSettings,

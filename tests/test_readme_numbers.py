@@ -1579,16 +1579,15 @@ def test_signal_policies_trained_with_keep_clear_and_on_another_cpu() -> None:
         "coder/trained_with_keep_clear/without_rule", "coder/train_3x3"))
     assert (f"throughput {last_ten(coder_off, 'throughput', 0)} against "
             f"{last_ten(coder_ref, 'throughput', 0)} over the last ten episodes") in docs
-    # Coder without the rule: the regional stage ends like the shipped one, the aggregation falls
+    # Coder without the rule: the regional stage ends like the shipped one, the aggregation
+    # stage (acting with the final regional network) far lower
     def stage_span(rows: list[dict], stage: str, last: int | None = None) -> str:
         values = [float(r["throughput"]) for r in rows if r["stage"] == stage][-(last or 99):]
         return f"{min(values):.0f}-{max(values):.0f}"
 
-    first = float(next(r for r in coder_off if r["stage"] == "2")["throughput"])
-    assert (f"({stage_span(coder_off, '1', 5)} vehicles per environment over its last five "
-            f"episodes, against {stage_span(coder_ref, '1', 5)}), then the aggregation's first "
-            f"episode falls to {first:.0f} and its 15 episodes stay at "
-            f"{stage_span(coder_off, '2')} (the shipped one's: "
+    assert (f"{stage_span(coder_off, '1', 5)} vehicles per environment over its last five "
+            f"episodes against {stage_span(coder_ref, '1', 5)}, then the aggregation stage's 15 "
+            f"episodes stay at {stage_span(coder_off, '2')} from the first, against "
             f"{stage_span(coder_ref, '2')})") in docs
     # PA-DQN without the rule: faster from 1200 on, fewer vehicles out at 2100
     assert all(pa["xeon_without_rule", d][0] > pa["shipped", d][0] for d in DENSITIES[3:])
