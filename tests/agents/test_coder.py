@@ -367,9 +367,9 @@ def test_a_policy_without_its_aggregation_sums_the_regional_values() -> None:
 
 @pytest.mark.slow
 def test_the_xeon_retrained_regional_network_is_the_poor_one() -> None:
-    # docs/comparators.md, "Signal policies trained with the keep-clear rule, and on another
-    # CPU": vehicles out (means over seeds 0-2) at 300, 1200, 2100 veh/lane/h, with and without
-    # each policy's aggregation
+    # vehicles out (means over seeds 0-2) at 300, 1200, 2100 veh/lane/h, with and without each
+    # policy's aggregation (docs/comparators.md,
+    # "Signal policies trained with the keep-clear rule, and on another CPU")
     folder = Path(__file__).resolve().parents[2] / "docs" / "results" / "coder"
     expected = {folder / "trained_with_keep_clear" / "without_rule" / "coder.pt":
                 ([166, 428, 427], [162, 427, 438]),
