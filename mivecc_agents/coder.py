@@ -29,8 +29,11 @@ module is this package's reading of that design, on the signal agents of
      from the grid's reward (vehicles through all centres x ``reward_scale``), exploration from
      ``global_eps_start``, on training seeds apart from the first stage's.
 
-A trained policy is :class:`CoderPolicy`; ``mivecc evaluate --scheme coder`` runs the shipped one
-(trained on 3x3, :func:`shipped_policy_path`), ``mivecc train-coder`` trains one.
+A trained policy is :class:`CoderPolicy` (:meth:`CoderPolicy.without_aggregation`: its regional
+network on the plain sum, as in stage 1); ``mivecc evaluate --scheme coder`` runs the shipped
+one (trained on 3x3, :func:`shipped_policy_path`), ``mivecc train-coder`` trains one and warns
+when the training ended with networks that move fewer vehicles than its regional stage did
+(:func:`training_shortfall`).
 """
 
 from __future__ import annotations
