@@ -17,7 +17,7 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from mivecc_env import cli_args
 from mivecc_env.config import ConfigError
@@ -79,24 +79,36 @@ def comparator_policies(args: argparse.Namespace) -> dict[str, Any]:
         signal_policies(args))
 
 
-#: The training commands: name -> (settings class path, trainer path, checkpoint file, help,
-#: description, the module with the trainer's ``write_log``, ``plot_learning_curve`` and
-#: ``progress_line``).
+class TrainCommand(NamedTuple):
+    """One training command: where its parts live (``module:name`` paths)."""
+
+    settings: str  #: the settings class
+    trainer: str  #: the trainer: ``(settings, on_episode) -> (policy, log)``
+    checkpoint: str  #: the file written in ``--out``
+    help: str  #: the one-line help
+    description: str  #: the command's description
+    log_module: str  #: the module with ``write_log``, ``plot_learning_curve``, ``progress_line``
+    #: ``(log) -> str | None``: a warning about the finished training, or None (no check)
+    log_check: str | None = None
+
+
+#: The training commands by name.
 TRAIN_COMMANDS = {
-    "train-signal": ("mivecc_agents.signal_dqn_settings:SignalDQNSettings",
+    "train-signal": TrainCommand("mivecc_agents.signal_dqn_settings:SignalDQNSettings",
                      "mivecc_agents.signal_dqn:train_signal_dqn", "signal_dqn.pt",
                      "train the PA-DQN signal policy (learned signal comparator)",
                      "Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
                      "decision_period_s) on the single intersection, or on a grid with "
                      "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn"),
-    "train-coder": ("mivecc_agents.coder_settings:CoderSettings",
+    "train-coder": TrainCommand("mivecc_agents.coder_settings:CoderSettings",
                     "mivecc_agents.coder:train_coder", "coder.pt",
                     "train the Coder signal policy (learned multi-intersection comparator)",
                     "Train Coder (regional DQN agents over 2x2 blocks, then the aggregation of "
                     "their values into the grid's Q-function; a decision every "
                     "decision_period_s) on 3x3, or another grid of 4-12 intersections with "
-                    "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn"),
-    "train-comaddpg": ("mivecc_agents.comaddpg_settings:CoMADDPGSettings",
+                    "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn",
+                    "mivecc_agents.coder:training_shortfall"),
+    "train-comaddpg": TrainCommand("mivecc_agents.comaddpg_settings:CoMADDPGSettings",
                        "mivecc_agents.comaddpg:train_comaddpg", "comaddpg.pt",
                        "train the CoMADDPG vehicle policy (learned unsignalized comparator)",
                        "Train CoMADDPG (every vehicle in a control area an agent: one shared "
@@ -131,11 +143,11 @@ def add_train_comaddpg_parser(subparsers: Any) -> argparse.ArgumentParser:
 def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
     """A training subcommand of :data:`TRAIN_COMMANDS`: every field of its settings class but
     ``config`` as an option (``--set KEY=VALUE`` for config fields)."""
-    settings_spec, _, checkpoint, help_text, description, _ = TRAIN_COMMANDS[name]
-    p = subparsers.add_parser(name, help=help_text, description=description)
-    p.add_argument("--out", type=Path, required=True,
-                   help=f"folder for {checkpoint}, train_log.csv and learning_curve.png")
-    for f in dataclasses.fields(_attr(settings_spec)):
+    command = TRAIN_COMMANDS[name]
+    p = subparsers.add_parser(name, help=command.help, description=command.description)
+    p.add_argument("--out", type=Path, required=True, help=f"folder for {command.checkpoint}, "
+                   "train_log.csv and learning_curve.png")
+    for f in dataclasses.fields(_attr(command.settings)):
         if f.name == "config":
             continue
         option = "--" + f.name.replace("_", "-")
@@ -167,9 +179,8 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     from mivecc_agents.cli import parse_set_items, set_inference_threads
     from mivecc_agents.train_checks import quiet_train_output
 
-    settings_spec, trainer_spec, checkpoint, _, _, log_module = TRAIN_COMMANDS[
-        args.train_command]
-    settings_cls = _attr(settings_spec)
+    command = TRAIN_COMMANDS[args.train_command]
+    settings_cls = _attr(command.settings)
     settings_kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(settings_cls)
                    if f.name not in ("config", "densities")}
     settings_kw["densities"] = tuple(args.densities)
@@ -180,21 +191,18 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out: {out} is a file; give a folder")
     set_inference_threads(args.threads)
     quiet_train_output()  # TorchRL's log lines to stderr: stdout holds the checkpoint's path
-    logs = importlib.import_module(log_module)
+    logs = importlib.import_module(command.log_module)
     total = settings.episodes + getattr(settings, "global_episodes", 0)
 
     def progress(row: dict[str, float]) -> None:
         print(logs.progress_line(row, total), file=sys.stderr, flush=True)
 
-    policy, log = _attr(trainer_spec)(settings, on_episode=progress)
-    path = policy.save(out / checkpoint)  # its settings say how it was trained
+    policy, log = _attr(command.trainer)(settings, on_episode=progress)
+    path = policy.save(out / command.checkpoint)  # its settings say how it was trained
     logs.write_log(log, out / "train_log.csv")
     logs.plot_learning_curve(log, out / "learning_curve.png")
-    if args.train_command == "train-coder":
-        from mivecc_agents.coder import training_shortfall
-
-        note = training_shortfall(log)
-        if note:
-            print(f"{PROG}: {note}", file=sys.stderr)
+    note = _attr(command.log_check)(log) if command.log_check else None
+    if note:
+        print(f"{PROG}: {note}", file=sys.stderr)
     print(path)
     return 0

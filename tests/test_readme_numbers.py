@@ -1701,3 +1701,29 @@ def test_pa_dqn_rerun_on_another_cpu_is_the_committed_run() -> None:
             ("reward_per_decision", 2), ("throughput", 0)) for f in (min, max))
 
     assert summary(logs[0]) == summary(logs[1])
+
+
+def test_keep_clear_cost_workload_is_the_committed_runs() -> None:
+    """docs/comparators.md, "What the rule costs": the timed command's traffic (fixed-time,
+    3x3, 2100 veh/lane/h, seeds 0-2), the same with and without the rule."""
+    import csv
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    results = ROOT / "docs" / "results"
+    with open(results / "comparison" / "comparison.csv", newline="", encoding="utf-8") as fh:
+        runs = [r for r in csv.DictReader(fh) if (r["scheme"], r["rows"], r["density"]) == (
+            "fixed-time", "3", "2100.0") and r["seed"] in ("0", "1", "2")]
+    assert len(runs) == 3
+
+    def mean(key: str) -> float:
+        return float(np.mean([float(r[key]) for r in runs]))
+
+    assert (f"per run {mean('throughput'):.1f} vehicles out, {mean('in_network'):.1f} in the "
+            f"network and {mean('backlog'):.1f} waiting to enter at the end") in docs
+    with open(results / "keep_clear" / "keep_clear.csv", newline="", encoding="utf-8") as fh:
+        pairs = {}
+        for r in csv.DictReader(fh):
+            if (r["scheme"], r["rows"], r["density"]) == ("fixed-time", "3", "2100"):
+                pairs.setdefault(r["seed"], set()).add(
+                    (r["avg_travel_velocity_mps"], r["throughput"], r["backlog"]))
+    assert len(pairs) == 3 and all(len(v) == 1 for v in pairs.values())  # rule on = off

@@ -106,13 +106,19 @@ QUEUED_MPS = 1.0
 QUEUE_LOOKAHEAD = 12
 
 
+def box_exit_m(line: FloatArray, c: MiVeCCConfig) -> FloatArray:
+    """Where the box past each stop line ``line`` [m] ends [m]: the line mirrored past the
+    intersection centre."""
+    return line + 2.0 * stop_line_offset_m(c)
+
+
 def box_blocked(asked: IntArray, s: FloatArray, v: FloatArray, leader: IntArray,
                 line: FloatArray, c: MiVeCCConfig) -> NDArray[np.bool_]:
     """Whether each vehicle ``asked`` (indices into ``s``, ``v``, ``leader``; ``line``: its stop
     line [m]) lacks room on its lane past the box ahead (``signal_keep_clear``): the compiled
     kernel (``step_kernels.box_blocked``), or without numba :func:`box_blocked_reference`."""
-    box_exit = line + 2.0 * stop_line_offset_m(c)
-    fast = step_kernels.box_blocked(asked, s, v, leader, line, box_exit, c.vehicle_length_m,
+    fast = step_kernels.box_blocked(asked, s, v, leader, line, box_exit_m(line, c),
+                                    c.vehicle_length_m,
                                     c.vehicle_length_m + c.idm_min_gap_m, QUEUED_MPS,
                                     QUEUE_LOOKAHEAD)
     return box_blocked_reference(asked, s, v, leader, line, c) if fast is None else fast
@@ -130,7 +136,7 @@ def box_blocked_reference(asked: IntArray, s: FloatArray, v: FloatArray, leader:
     ``vehicle_length_m + idm_min_gap_m``.
     """
     length, slot = c.vehicle_length_m, c.vehicle_length_m + c.idm_min_gap_m
-    box_exit = line + 2.0 * stop_line_offset_m(c)
+    box_exit = box_exit_m(line, c)
     n = asked.size
     ahead = leader[asked]
     between = np.zeros(n, dtype=np.int64)
