@@ -75,7 +75,8 @@ def _section_names(page: Path) -> tuple[str, ...]:
     """Headings and bold lead-ins (``**Name.**``) of a page, lower case, spaces collapsed."""
     text = re.sub(r"^```.*?^```", "", _read(page), flags=re.S | re.M)  # code blocks:
     names = [ln.lstrip("#") for ln in text.splitlines() if ln.startswith("#")]  # no headings
-    names += re.findall(r"\*\*(.+?)\*\*", text, flags=re.S)  # nor ** of **kwargs
+    text = re.sub(r"`[^`]*`", "", text)  # code spans: their ** (**kwargs) pairs with no other
+    names += re.findall(r"\*\*(.+?)\*\*", text, flags=re.S)
     return tuple(" ".join(n.split()).lower() for n in names)
 
 
