@@ -6,7 +6,9 @@ policy may not be (torch's CPU kernels round the networks' float32 outputs per C
 runs both CSVs hold (same grid, scheme, density and seed) this prints and writes
 
 * per scheme, how many runs are identical in average travel velocity, released-style velocity
-  and strict collision events;
+  and strict collision events, and how many in every column both CSVs have but the timings
+  (:data:`TIMINGS`; a later CSV may have columns an earlier one lacks, such as config fields
+  added since, and a cell empty in either, a run made before its column existed, is skipped);
 * per grid and metric (average travel and released-style velocity), the gains EE vs E, EEC vs
   EE and EEC vs E [%] per density (of the means over seeds, as ``paper_table.md`` computes
   them) in either run, and the largest difference;
@@ -37,6 +39,8 @@ from mivecc_env import cli_args
 COMPARED = ("avg_travel_velocity_mps", "released_velocity_mps", "collisions")
 METRICS = {"avg_travel_velocity_mps": "average travel velocity",
            "released_velocity_mps": "released-style velocity"}
+#: Columns left out of the every-column comparison: they time the run, not what it simulated.
+TIMINGS = ("steps_per_s", "wall_s")
 GAINS = (("EE", "E"), ("EEC", "EE"), ("EEC", "E"))
 EVENT_SCHEMES = ("E", "EE", "EEC")
 
@@ -45,16 +49,32 @@ def _runs(rows: list[dict[str, Any]]) -> dict[tuple[Any, ...], dict[str, Any]]:
     return {tuple(r[k] for k in RUN_KEY): r for r in rows}
 
 
-def identical_runs(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> dict[str, tuple[int, int]]:
-    """``scheme -> (identical runs, runs in both)``."""
+def _same(x: Any, y: Any) -> bool:
+    """Exact equality, two NaNs counting as equal; a cell empty in either table is not
+    compared (a merged table leaves the columns added after a run was made empty for it)."""
+    if x == "" or y == "":
+        return True
+    return x == y or (isinstance(x, float) and isinstance(y, float) and x != x and y != y)
+
+
+def identical_runs(a: list[dict[str, Any]], b: list[dict[str, Any]],
+                   columns: Sequence[str] = COMPARED) -> dict[str, tuple[int, int]]:
+    """``scheme -> (runs identical in ``columns``, runs in both)``."""
     ra, rb = _runs(a), _runs(b)
     out: dict[str, list[int]] = {}
     for key in sorted(set(ra) & set(rb), key=str):
-        same = all(ra[key].get(m) == rb[key].get(m) for m in COMPARED)
+        same = all(_same(ra[key].get(m), rb[key].get(m)) for m in columns)
         count = out.setdefault(str(ra[key]["scheme"]), [0, 0])
         count[0] += same
         count[1] += 1
     return {s: (c[0], c[1]) for s, c in out.items()}
+
+
+def shared_columns(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> list[str]:
+    """The columns both tables have, but :data:`RUN_KEY` and :data:`TIMINGS`, in ``a``'s
+    order."""
+    theirs = set(b[0]) if b else set()
+    return [c for c in (a[0] if a else ()) if c in theirs and c not in (*RUN_KEY, *TIMINGS)]
 
 
 def _mean(rows: list[dict[str, Any]], scheme: str, grid: tuple[int, int], density: float,
@@ -85,10 +105,16 @@ def diff_markdown(a: list[dict[str, Any]], b: list[dict[str, Any]], names: Seque
     na, nb = names
     ra, rb = _runs(a), _runs(b)
     common = [ra[k] for k in set(ra) & set(rb)]
+    columns = shared_columns(a, b)
+    every = identical_runs(a, b, columns)
     lines = ["Runs identical in average travel velocity, released-style velocity and strict "
-             f"collision events, {na} against {nb}:", "",
-             "| scheme | identical / runs in both |", "|---|---|"]
-    lines += [f"| {s} | {i} / {n} |" for s, (i, n) in identical_runs(a, b).items()]
+             f"collision events, and in all {len(columns)} columns both tables have but the "
+             f"timings ({', '.join(TIMINGS)}; cells empty in either skipped), {na} against {nb}:",
+             "",
+             "| scheme | identical / runs in both | identical in every column |",
+             "|---|---|---|"]
+    lines += [f"| {s} | {i} / {n} | {every[s][0]} / {n} |"
+              for s, (i, n) in identical_runs(a, b).items()]
     for grid in sorted({(r["rows"], r["cols"]) for r in common}):
         densities = sorted({r["density"] for r in common if (r["rows"], r["cols"]) == grid})
         head = "| | " + " | ".join(f"{d:g}" for d in densities) + " | largest difference |"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -301,14 +302,25 @@ def test_edge_reward_check_ranks_constant_edges(tmp_path: Path) -> None:
 
 
 def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> None:
-    def run(scheme: str, seed: int, v: float, events: int = 0) -> dict:
+    def run(scheme: str, seed: int, v: float, events: int = 0, out: int = 5,
+            wall_s: float = 1.0) -> dict:
         return {"rows": 1, "cols": 1, "scheme": scheme, "density": 900, "seed": seed,
                 "avg_travel_velocity_mps": v, "released_velocity_mps": v + 1.0,
-                "collisions": events}
+                "collisions": events, "throughput": out, "min_pet_s": math.nan,
+                "wall_s": wall_s}
 
     a = [run("E", 0, 10.0), run("E", 1, 10.0), run("EE", 0, 11.0), run("EE", 1, 11.0, 1)]
-    b = [run("E", 0, 10.0), run("E", 1, 10.0), run("EE", 0, 11.0), run("EE", 1, 12.0, 2)]
+    # b: E seed 1 moves another vehicle out, every run took another time, and b has a column
+    # a lacks (a config field added since): neither of the last two is compared
+    b = [{**r, "safety_shield": False} for r in (
+        run("E", 0, 10.0, wall_s=2.0), run("E", 1, 10.0, out=6), run("EE", 0, 11.0),
+        run("EE", 1, 12.0, 2))]
+    a[2]["throughput"] = ""  # a merged table's run made before its column existed: skipped
     assert table_diff.identical_runs(a, b) == {"E": (2, 2), "EE": (1, 2)}
+    columns = table_diff.shared_columns(a, b)
+    assert columns == ["avg_travel_velocity_mps", "released_velocity_mps", "collisions",
+                       "throughput", "min_pet_s"]
+    assert table_diff.identical_runs(a, b, columns) == {"E": (1, 2), "EE": (1, 2)}
     assert table_diff.gains(a, (1, 1), [900], "avg_travel_velocity_mps")["EE vs E"] == [10.0]
     assert table_diff.gains(b, (1, 1), [900], "avg_travel_velocity_mps")["EE vs E"] == [15.0]
     assert table_diff.events(b, "EE", (1, 1), [900]) == [2]
@@ -319,7 +331,9 @@ def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> 
             writer.writerows(rows)
     text = table_diff.main([str(tmp_path / "a.csv"), str(tmp_path / "b.csv"), "--names", "X",
                             "Y", "--out", str(tmp_path / "diff.md")])
-    assert "| EE | 1 / 2 |" in text and "| EE vs E, Y | +15.00 | 5.00 |" in text
+    assert "| E | 2 / 2 | 1 / 2 |" in text and "| EE | 1 / 2 | 1 / 2 |" in text
+    assert "in all 5 columns both tables have but the timings" in text
+    assert "| EE vs E, Y | +15.00 | 5.00 |" in text
     assert "| EE, Y | 2 | 2 |" in text and "| EEC, " not in text  # no EEC runs: no EEC rows
     assert (tmp_path / "diff.md").read_text().startswith("Command: `python benchmarks/table_diff")
     (tmp_path / "bad.csv").write_text("x,y\n1,2\n")

@@ -1208,6 +1208,36 @@ def test_session34_rules_only_runs_on_a_cpu_without_avx512():
     assert "default EE in 3 of 42" in training and "and EEC in 1 of 42" in training
 
 
+def test_session46_rerun_on_the_xeon_equals_session21_in_every_column():
+    """Both tables rerun in session 46 on an Intel Xeon whose policy digests equal session
+    21's: every run identical to session 21's rerun in every shared column (timings aside)."""
+    import json
+
+    import table_diff
+
+    training = " ".join((ROOT / "docs" / "training.md").read_text(encoding="utf-8").split())
+    here = ROOT / "docs" / "results" / "reproducibility"
+    digests = json.loads((here / "machine_session21.json").read_text())["policy_digests"]
+    for model, before in (("default", "paper_table_session21.csv"),
+                          ("released", "paper_table_released_session21.csv")):
+        machine = json.loads((here / "session46_xeon" / model / "machine.json").read_text())
+        assert machine["cpu"].startswith("Intel(R) Xeon") and not machine["git_dirty"]
+        assert {k: machine["policy_digests"][k] for k in digests} == digests
+        a = read_runs_csv(here / before)
+        b = read_runs_csv(here / "session46_xeon" / model / "paper_table.csv")
+        columns = table_diff.shared_columns(a, b)
+        assert len(columns) == 36 and "min_pet_s" in columns and "throughput" in columns
+        assert set(b[0]) - set(a[0]) == {"comparator_entry", "signal_keep_clear",
+                                          "cloud_graphs", "safety_shield"}
+        counts = table_diff.identical_runs(a, b, columns)
+        assert counts == {s: (42, 42) for s in ("E", "EE", "EE+3", "EEC", "EEC+3",
+                                                "signalized")}, model
+    assert "252 of 252 per model, learned policies included, in every one of the 36 columns" in (
+        training)
+    assert "equal session 21's reruns there in every column of all 504 runs" in " ".join(
+        README.split())
+
+
 def test_session35_stacking_audits_on_other_seeds_and_lengths():
     """Session 35's stacking audits: every row of the table in docs/training.md, and the
     times in its command block, from the committed audit files."""
