@@ -88,8 +88,8 @@ class TrainCommand(NamedTuple):
     help: str  #: the one-line help
     description: str  #: the command's description
     log_module: str  #: the module with ``write_log``, ``plot_learning_curve``, ``progress_line``
-    #: ``(log) -> str | None``: a warning about the finished training, or None (no check)
-    log_check: str | None = None
+    #: each ``(log) -> str | None``: a note (or a warning) about the finished training, or None
+    log_checks: tuple[str, ...] = ()
 
 
 #: The training commands by name.
@@ -99,7 +99,8 @@ TRAIN_COMMANDS = {
                      "train the PA-DQN signal policy (learned signal comparator)",
                      "Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
                      "decision_period_s) on the single intersection, or on a grid with "
-                     "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn"),
+                     "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn",
+                     ("mivecc_agents.signal_dqn:kept_note",)),
     "train-coder": TrainCommand("mivecc_agents.coder_settings:CoderSettings",
                     "mivecc_agents.coder:train_coder", "coder.pt",
                     "train the Coder signal policy (learned multi-intersection comparator)",
@@ -107,7 +108,8 @@ TRAIN_COMMANDS = {
                     "their values into the grid's Q-function; a decision every "
                     "decision_period_s) on 3x3, or another grid of 4-12 intersections with "
                     "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn",
-                    "mivecc_agents.coder:training_shortfall"),
+                    ("mivecc_agents.signal_dqn:kept_note",
+                     "mivecc_agents.coder:training_shortfall")),
     "train-comaddpg": TrainCommand("mivecc_agents.comaddpg_settings:CoMADDPGSettings",
                        "mivecc_agents.comaddpg:train_comaddpg", "comaddpg.pt",
                        "train the CoMADDPG vehicle policy (learned unsignalized comparator)",
@@ -201,8 +203,9 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     path = policy.save(out / command.checkpoint)  # its settings say how it was trained
     logs.write_log(log, out / "train_log.csv")
     logs.plot_learning_curve(log, out / "learning_curve.png")
-    note = _attr(command.log_check)(log) if command.log_check else None
-    if note:
-        print(f"{PROG}: {note}", file=sys.stderr)
+    for check in command.log_checks:
+        note = _attr(check)(log)
+        if note:
+            print(f"{PROG}: {note}", file=sys.stderr)
     print(path)
     return 0

@@ -29,6 +29,10 @@ module is this package's reading of that design, on the signal agents of
      from the grid's reward (vehicles through all centres x ``reward_scale``), exploration from
      ``global_eps_start``, on training seeds apart from the first stage's.
 
+  With ``keep_network="best"`` (the default) each stage ends with its best-validated network
+  restored (:class:`mivecc_agents.signal_dqn.KeptNetwork`): the aggregation stage trains over
+  the kept regional network.
+
 A trained policy is :class:`CoderPolicy` (:meth:`CoderPolicy.without_aggregation`: its regional
 network on the plain sum, as in stage 1); ``mivecc evaluate --scheme coder`` runs the shipped
 one (trained on 3x3, :func:`shipped_policy_path`), ``mivecc train-coder`` trains one and warns
@@ -53,9 +57,11 @@ from mivecc_agents.signal_dqn import (
     FIRST_TRAIN_SEED,
     SHIPPED_DIR,
     DQNLearner,
+    KeptNetwork,
     SignalQNetwork,
     explore,
     run_episodes,
+    saved_settings,
     training_env,
 )
 from mivecc_env import signal_agents
@@ -296,7 +302,7 @@ class CoderPolicy:
             regional.load_state_dict(data["regional"])
             aggregation = AggregationNetwork(ones, global_hidden)
             aggregation.load_state_dict(data["aggregation"])
-            settings = dict(data["settings"])
+            settings = saved_settings(data)
             check_coder_grid(int(settings["rows"]), int(settings["cols"]))
         return cls(regional, aggregation, period, settings, checkpoint=str(path))
 
@@ -383,7 +389,9 @@ def train_coder(settings: CoderSettings,
                                  next_obs[:, regions].reshape(-1, width))
             return regional_learner.update()
 
-        run_episodes(settings, env, act_regional, learn_regional, stage_rows(1))
+        run_episodes(settings, env, act_regional, learn_regional, stage_rows(1),
+                     keep=KeptNetwork.for_settings(settings, cfg, regional,
+                                                   lambda obs: greedy_phases(summed, obs)))
 
         # Stage 2: the aggregation network over the frozen regional network.
         regional.requires_grad_(False)
@@ -402,7 +410,9 @@ def train_coder(settings: CoderSettings,
 
         run_episodes(settings, env, act_global, learn_global, stage_rows(2),
                      episodes=settings.global_episodes, eps_start=settings.global_eps_start,
-                     first_seed=FIRST_TRAIN_SEED + AGGREGATION_SEED_OFFSET)
+                     first_seed=FIRST_TRAIN_SEED + AGGREGATION_SEED_OFFSET,
+                     keep=KeptNetwork.for_settings(settings, cfg, aggregation,
+                                                   lambda obs: greedy_phases(weighted, obs)))
     regional.requires_grad_(True)
     return CoderPolicy(regional, aggregation, settings.decision_period_s,
                        settings.to_dict()), log

@@ -19,7 +19,10 @@ is public. This module is this package's reading of it, on the signal agents of
   exploration decaying linearly, a replay buffer; ``batch`` environments on the single
   intersection with the densities of ``densities`` cycled over them, episodes of
   ``episode_steps`` steps from an empty network, each on fresh training seeds (never the
-  evaluation seeds 0-2).
+  evaluation seeds 0-2). With ``keep_network="best"`` (the default) the network returned is
+  the one whose greedy run on validation environments moved the most vehicles out
+  (:class:`KeptNetwork`, :func:`greedy_throughput`; validated once the exploration has
+  decayed), not the last one.
 
 A trained policy is :class:`SignalDQNPolicy`; :class:`HeldPhases` holds its choices between
 decisions; ``mivecc evaluate --scheme pa-dqn`` runs the shipped one of
@@ -32,7 +35,7 @@ from __future__ import annotations
 import csv
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +63,9 @@ SIGNAL_KIND = "signal_dqn"
 SHIPPED_DIR = Path(__file__).parent / "pretrained"
 #: The first training seed (training never uses the evaluation seeds 0, 1, 2).
 FIRST_TRAIN_SEED = 10_000
+#: Seed of the first validation environment of ``keep_network="best"`` (environment ``b``:
+#: this + ``b``), apart from the evaluation seeds (0-7 in the docs) and the training seeds.
+VALIDATION_SEED = 1_000
 
 
 def shipped_policy_path(rows: int = 1, cols: int = 1) -> Path:
@@ -142,7 +148,13 @@ class SignalDQNPolicy:
                 raise ValueError(f"hidden {hidden}, decision period {period}")
             net = SignalQNetwork(torch.ones(signal_agents.OBS_DIM), hidden)
             net.load_state_dict(data["network"])
-        return cls(net, period, dict(data["settings"]), checkpoint=str(path))
+        return cls(net, period, saved_settings(data), checkpoint=str(path))
+
+
+def saved_settings(checkpoint: dict[str, Any]) -> dict[str, Any]:
+    """A signal checkpoint's training settings; one written before ``keep_network`` existed
+    (session 46) kept the last network."""
+    return {"keep_network": "last", **dict(checkpoint["settings"])}
 
 
 class HeldPhases:
@@ -206,19 +218,77 @@ def train_signal_dqn(settings: SignalDQNSettings,
                         next_obs.reshape(-1, n_in))
             return learner.update()
 
-        log = run_episodes(settings, env, act, learn, on_episode)
+        def greedy(obs: np.ndarray) -> np.ndarray:
+            return learner.greedy(obs.reshape(-1, obs.shape[-1])).reshape(obs.shape[:2])
+
+        keep = KeptNetwork.for_settings(settings, cfg, learner.qnet, greedy)
+        log = run_episodes(settings, env, act, learn, on_episode, keep=keep)
     policy = SignalDQNPolicy(learner.qnet, settings.decision_period_s, settings.to_dict())
     return policy, log
 
 
-def training_env(settings: SignalDQNSettings, cfg: MiVeCCConfig) -> Any:
-    """``settings.batch`` signalized environments with signal agents and the throughput
-    reward, the densities of ``settings.densities`` cycled over them."""
+def training_env(settings: SignalDQNSettings, cfg: MiVeCCConfig,
+                 batch: int | None = None) -> Any:
+    """``batch`` (default ``settings.batch``) signalized environments with signal agents and
+    the throughput reward, the densities of ``settings.densities`` cycled over them."""
     from mivecc_env.batched import BatchedMiVeCCEnv
 
-    densities = [settings.densities[i % len(settings.densities)] for i in range(settings.batch)]
-    return BatchedMiVeCCEnv(cfg, batch_size=settings.batch, densities=densities, observe=(),
+    batch = settings.batch if batch is None else batch
+    densities = [settings.densities[i % len(settings.densities)] for i in range(batch)]
+    return BatchedMiVeCCEnv(cfg, batch_size=batch, densities=densities, observe=(),
                             signal_agents=True, signal_reward="throughput")
+
+
+def greedy_throughput(settings: SignalDQNSettings, env: Any,
+                      greedy: Callable[[np.ndarray], np.ndarray]) -> float:
+    """Vehicles out per environment (mean over ``env``'s environments) of a run of
+    ``settings.episode_steps`` steps from an empty network on the seeds from
+    :data:`VALIDATION_SEED`, ``greedy(obs)`` choosing the phases ``(B, n_int)`` every
+    ``settings.decision_period_s`` (no exploration, no learning)."""
+    period = decision_steps(settings.decision_period_s, env.config.dt_s)
+    obs = env.reset(seed=VALIDATION_SEED).signal_obs
+    for _ in range(settings.episode_steps // period):
+        phases = greedy(obs)
+        for _ in range(period):
+            out = env.step(signal_action=phases)
+        obs = out.signal_obs
+    return float(env.summary()["throughput"].mean())
+
+
+class KeptNetwork:
+    """``keep_network="best"``: :meth:`consider` scores the module's current state by
+    :func:`greedy_throughput` on the validation environments (one per entry of
+    ``settings.densities``) and remembers the best state; :meth:`restore` loads it (ties: the
+    earlier). Validation neither explores nor learns, so the training itself is the same as
+    with ``keep_network="last"``."""
+
+    def __init__(self, module: nn.Module, score: Callable[[], float]) -> None:
+        self.module = module
+        self.score = score
+        self.best_score = -math.inf
+        self.best_state: dict[str, torch.Tensor] | None = None
+
+    @classmethod
+    def for_settings(cls, settings: SignalDQNSettings, cfg: MiVeCCConfig, module: nn.Module,
+                     greedy: Callable[[np.ndarray], np.ndarray]) -> KeptNetwork | None:
+        """The keeper of ``module`` for ``settings`` (None with ``keep_network="last"``)."""
+        if settings.keep_network != "best":
+            return None
+        env = training_env(settings, cfg, batch=len(settings.densities))
+        return cls(module, lambda: greedy_throughput(settings, env, greedy))
+
+    def consider(self) -> float:
+        """Score the current state; keep it if it beats every earlier one. Returns the score."""
+        score = self.score()
+        if score > self.best_score:
+            self.best_score = score
+            self.best_state = {k: v.detach().clone() for k, v in self.module.state_dict().items()}
+        return score
+
+    def restore(self) -> None:
+        """Load the best state considered (nothing if none was)."""
+        if self.best_state is not None:
+            self.module.load_state_dict(self.best_state)
 
 
 def explore(rng: np.random.Generator, phases: np.ndarray, eps: float) -> np.ndarray:
@@ -294,7 +364,8 @@ def run_episodes(settings: SignalDQNSettings, env: Any,
                  learn: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], float | None],
                  on_episode: Callable[[dict[str, float]], None] | None, *,
                  episodes: int | None = None, eps_start: float | None = None,
-                 first_seed: int = FIRST_TRAIN_SEED) -> list[dict[str, float]]:
+                 first_seed: int = FIRST_TRAIN_SEED,
+                 keep: KeptNetwork | None = None) -> list[dict[str, float]]:
     """The training loop of the signal learners: ``episodes`` (default ``settings.episodes``)
     episodes of ``settings.episode_steps`` steps, each from an empty network on fresh seeds
     (``first_seed`` + ``settings.seed`` x 1e6 + episode x batch); a decision every
@@ -308,6 +379,11 @@ def run_episodes(settings: SignalDQNSettings, env: Any,
     its centre in the period x ``settings.reward_scale``, ``(B, n_int)``) and returns the mean
     loss of its updates (None before the first). One log row per episode
     (:func:`train_signal_dqn`).
+
+    With ``keep`` (``keep_network="best"``) each row also has ``validation_throughput``:
+    ``keep.consider()`` after every episode that ended with the exploration decayed to
+    ``settings.eps_end`` and after the last one, NaN after the others; the best network is
+    restored at the end.
     """
     episodes = settings.episodes if episodes is None else episodes
     eps_start = settings.eps_start if eps_start is None else eps_start
@@ -341,11 +417,18 @@ def run_episodes(settings: SignalDQNSettings, env: Any,
                "throughput": float(summary["throughput"].mean()),
                "backlog": float(summary["backlog"].mean()),
                "avg_travel_velocity_mps": float(np.nanmean(summary["avg_travel_velocity_mps"])),
-               "loss": float(np.mean(losses)) if losses else math.nan,
-               "wall_s": time.perf_counter() - t0}
+               "loss": float(np.mean(losses)) if losses else math.nan}
+        if keep is not None:
+            # the episode's last decision explored at eps_end (or there is no decay)
+            decayed = frac >= 1.0 or eps_start == settings.eps_end
+            validate = decayed or episode == episodes - 1
+            row["validation_throughput"] = keep.consider() if validate else math.nan
+        row["wall_s"] = time.perf_counter() - t0
         log.append(row)
         if on_episode is not None:
             on_episode(row)
+    if keep is not None:
+        keep.restore()
     return log
 
 
@@ -355,7 +438,40 @@ def progress_line(row: dict[str, float], total: int) -> str:
     return (f"episode {row['episode']:.0f}/{total}{stage}: reward/decision "
             f"{row['reward_per_decision']:.3f}, throughput {row['throughput']:.1f} veh, "
             f"backlog {row['backlog']:.1f} veh, epsilon {row['epsilon']:.2f}, loss "
-            f"{row['loss']:.4f}, {row['wall_s']:.0f} s")
+            f"{row['loss']:.4f}{_validation(row)}, {row['wall_s']:.0f} s")
+
+
+def kept_episodes(log: Sequence[Mapping[str, float]]) -> list[tuple[int, int, float, float]]:
+    """Per stage of a ``keep_network="best"`` training log (one stage for PA-DQN; Coder's
+    ``stage`` 1 and 2): ``(stage, episode kept, its validation throughput, the last validated
+    episode's)``, the kept one the first of the highest; empty for a log without validation."""
+    out = []
+    for stage in sorted({int(r.get("stage", 1)) for r in log}):
+        rows = [r for r in log if int(r.get("stage", 1)) == stage
+                and not math.isnan(float(r.get("validation_throughput", math.nan)))]
+        if rows:
+            best = max(rows, key=lambda r: float(r["validation_throughput"]))
+            out.append((stage, int(best["episode"]), float(best["validation_throughput"]),
+                        float(rows[-1]["validation_throughput"])))
+    return out
+
+
+def kept_note(log: Sequence[Mapping[str, float]]) -> str | None:
+    """One line naming the network(s) a ``keep_network="best"`` training returned (None for
+    ``keep_network="last"``)."""
+    kept = kept_episodes(log)
+    if not kept:
+        return None
+    staged = len(kept) > 1 or "stage" in log[0]
+    parts = [f"after episode {episode}{f' (stage {stage})' if staged else ''}: {value:.1f} "
+             f"vehicles out per validation environment, the last validated network {last:.1f}"
+             for stage, episode, value, last in kept]
+    return "kept the network of the best greedy validation run " + "; ".join(parts)
+
+
+def _validation(row: dict[str, float]) -> str:
+    value = row.get("validation_throughput", math.nan)
+    return "" if math.isnan(value) else f", validation {value:.1f} veh"
 
 
 def write_log(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
@@ -378,11 +494,17 @@ def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> P
     import matplotlib.pyplot as plt
 
     episodes = [r["episode"] for r in rows]
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9.5, 6), sharex=True)
     top.plot(episodes, [r["reward_per_decision"] for r in rows], marker="o", ms=3)
     top.set_ylabel("reward per decision\n(vehicles through x scale)")
     bottom.plot(episodes, [r["throughput"] for r in rows], marker="o", ms=3, label="throughput")
     bottom.plot(episodes, [r["backlog"] for r in rows], marker="s", ms=3, label="entry backlog")
+    if "validation_throughput" in rows[0]:
+        bottom.plot(episodes, [r["validation_throughput"] for r in rows], "D", ms=4,
+                    label="throughput, greedy validation run")
+        kept = kept_episodes(rows)
+        bottom.plot([k[1] for k in kept], [k[2] for k in kept], "*", ms=14, color="black",
+                    label="network kept (keep_network=best)")
     bottom.set_ylabel("vehicles per environment")
     bottom.set_xlabel("episode")
     second_stage = [r["episode"] for r in rows if r.get("stage") == 2]
@@ -394,7 +516,7 @@ def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> P
                        label="aggregation stage begins")
     else:
         top.set_title("PA-DQN training (exploration included)")
-    bottom.legend()
+    bottom.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     for ax in (top, bottom):
         ax.grid(alpha=0.3)
     return save_figure(fig, path)

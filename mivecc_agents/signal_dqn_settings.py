@@ -65,6 +65,12 @@ class SignalDQNSettings:
                                      "decays linearly")
     seed: int = _opt(0, "seed of the network, the replay sampling, the exploration and the "
                      "training demand")
+    keep_network: str = _opt(
+        "best", "which network the training returns: `best`, of the networks after each "
+        "episode once the exploration has decayed (and after the last episode), the one whose "
+        "greedy run on validation environments (one per entry of `densities`, seeds 1000 on) "
+        "moved the most vehicles out (Coder: per stage); `last`, the one it ended with (before "
+        "session 46 the only one)", ("best", "last"))
     config: dict[str, Any] = field(default_factory=dict, metadata={
         "help": "further MiVeCCConfig fields of the training environments"})
 
@@ -79,6 +85,7 @@ class SignalDQNSettings:
                   "eps_start": (0.0, 1.0, False), "eps_end": (0.0, 1.0, False),
                   "eps_decay_fraction": (0.0, 1.0, True)}
         check_numbers(self, ints, floats)
+        check_choices(self)
         check_densities(self.densities)
         self.env_config()  # the config fields, the grid and the decision period
         return self

@@ -1757,3 +1757,98 @@ def test_keep_clear_cost_workload_is_the_committed_runs() -> None:
                 pairs.setdefault(r["seed"], set()).add(
                     (r["avg_travel_velocity_mps"], r["throughput"], r["backlog"]))
     assert len(pairs) == 3 and all(len(v) == 1 for v in pairs.values())  # rule on = off
+
+
+def test_keeping_the_best_validated_network() -> None:
+    """docs/comparators.md, "Keeping the best-validated network": session 46's trainings
+    against session 45's (the same training, another network kept), their evaluation."""
+    import csv
+
+    import comparison
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    results = ROOT / "docs" / "results"
+
+    def log(folder: str) -> list[dict]:
+        with open(results / folder / "train_log.csv", newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+
+    def validated(rows: list[dict], stage: str | None = None) -> list[tuple[int, float]]:
+        return [(int(r["episode"]), float(r["validation_throughput"])) for r in rows
+                if r["validation_throughput"] != "nan" and stage in (None, r.get("stage"))]
+
+    # the same training as session 45's up to the end of the stage where the kept network
+    # first differs: PA-DQN's whole log, Coder's regional stage
+    for best, last, same_rows in (
+            ("pa_dqn/keep_best_3x3/without_rule",
+             "pa_dqn/trained_with_keep_clear_3x3/without_rule", 40),
+            ("coder/keep_best/without_rule", "coder/trained_with_keep_clear/without_rule", 30),
+            ("coder/keep_best/with_rule", "coder/trained_with_keep_clear/with_rule", 30)):
+        a, b = log(best), log(last)
+        columns = [c for c in b[0] if c != "wall_s"]
+        equal = [all(x[c] == y[c] for c in columns) for x, y in zip(a, b, strict=True)]
+        assert equal == [True] * same_rows + [False] * (len(a) - same_rows), best
+    off, on, pa = (log(f) for f in ("coder/keep_best/without_rule", "coder/keep_best/with_rule",
+                                    "pa_dqn/keep_best_3x3/without_rule"))
+    stage1 = validated(off, "1")
+    best1 = max(stage1, key=lambda v: v[1])
+    assert len(stage1) == 15 and len(validated(off, "2")) == 8 and len(validated(pa)) == 20
+    assert (f"moved {min(v for _, v in stage1):.1f}-{best1[1]:.1f} vehicles out over the "
+            f"stage's 15 validated episodes; the last one, the network session 45 kept, "
+            f"{stage1[-1][1]:.1f}, the best (episode {best1[0]}) {best1[1]:.1f}") in docs
+    agg = [float(r["throughput"]) for r in off if r["stage"] == "2"][-5:]
+    assert f"move {min(agg):.0f}-{max(agg):.0f} vehicles per environment over their last five" \
+        in docs
+    from mivecc_agents.coder import training_shortfall
+    assert training_shortfall(off) is None and training_shortfall(on) is None
+    with_rule = validated(on, "1")
+    assert (f"its last validation {with_rule[-1][1]:.1f} against the best "
+            f"{max(v for _, v in with_rule):.1f}") in docs
+    pa_val = validated(pa)
+    pa_best = max(pa_val, key=lambda v: v[1])
+    assert (f"moved {min(v for _, v in pa_val):.1f}-{pa_best[1]:.1f} vehicles out (episodes "
+            f"{pa_val[0][0]}-{pa_val[-1][0]}); it kept episode {pa_best[0]} ({pa_best[1]:.1f}; "
+            f"the last network {pa_val[-1][1]:.1f})") in docs
+
+    # the evaluation: vehicles out, EEC's lead, who is faster
+    coder = _policy_cells(results / "coder" / "keep_best" / "learned_policies.csv")
+    pa_cells = _policy_cells(results / "pa_dqn" / "keep_best_3x3" / "learned_policies.csv")
+    rows = list(comparison.load_rows([results / "comparison" / "comparison.csv"]).values())
+    ref = {(t["scheme"], t["density"]): t
+           for t in comparison.summarise(rows, [(3, 3)], ["EEC"], DENSITIES)}
+
+    def out(cells: dict, name: str) -> str:
+        values = [cells[name, d][2] for d in DENSITIES]
+        return f"{min(values):.0f}-{max(values):.0f}"
+
+    def lead(name: str) -> str:
+        g = [100 * (ref["EEC", d]["velocity_mean_mps"] / coder[name, d][0] - 1)
+             for d in DENSITIES]
+        return f"{min(g):.0f}-{max(g):.0f} %"
+
+    assert all(c[1] == 0 for c in (*coder.values(), *pa_cells.values()))
+    assert (f"lets out {out(coder, 'best_without_rule')} vehicles on seeds 0-2 against session "
+            f"45's {out(coder, 'last_without_rule')} and the shipped policy's "
+            f"{out(coder, 'shipped')}") in docs
+    more = [coder["best_without_rule", d][2] > coder["shipped", d][2] for d in DENSITIES]
+    faster = [coder["best_without_rule", d][0] > coder["shipped", d][0] for d in DENSITIES]
+    assert more == [True] * 5 + [False] * 2 and faster == [True] * 3 + [False] * 4
+    assert (f"leads it by {lead('best_without_rule')} (session 45's policy: "
+            f"{lead('last_without_rule')}; the shipped one: {lead('shipped')})") in docs
+    more = [coder["best_with_rule", d][2] > coder["last_with_rule", d][2] for d in DENSITIES]
+    assert more == [False] * 3 + [True] * 4
+    assert (f"lets out {out(coder, 'best_with_rule')} vehicles against "
+            f"{out(coder, 'last_with_rule')} (more from 1200 veh/lane/h on, fewer below), and "
+            f"EEC leads it by {lead('best_with_rule')}") in docs
+    assert all(pa_cells["best_without_rule", d][2] > pa_cells["last_without_rule", d][2]
+               for d in DENSITIES)
+    assert [pa_cells["best_without_rule", d][0] < pa_cells["last_without_rule", d][0]
+            for d in DENSITIES] == [False] * 3 + [True] * 4
+    assert [pa_cells["best_without_rule", d][0] > pa_cells["shipped", d][0]
+            for d in DENSITIES] == [False] + [True] * 6
+    assert (f"({out(pa_cells, 'best_without_rule')} against "
+            f"{out(pa_cells, 'last_without_rule')}; the shipped policy "
+            f"{out(pa_cells, 'shipped')})") in docs
+    assert (f"lets out {out(coder, 'best_without_rule')} vehicles against the shipped one's "
+            f"{out(coder, 'shipped')} (EEC's lead {lead('best_without_rule')};") in " ".join(
+        RESULTS.split())

@@ -241,7 +241,7 @@ def test_command_line(tmp_path, capsys) -> None:
                      "--densities", "900", "--rows", "2", "--cols", "2"]) == 0
     captured = capsys.readouterr()
     assert captured.out.strip() == str(out / "coder.pt")
-    assert "episode 2/2 (stage 2)" in captured.err
+    assert "episode 2/2 (stage 2)" in captured.err and "mivecc: kept the network" in captured.err
     assert (out / "train_log.csv").read_text().startswith("episode,epsilon,")
     assert (out / "learning_curve.png").stat().st_size > 10_000
     assert cli.main(["evaluate", "--scheme", "coder", "--signal-checkpoint",
@@ -271,7 +271,8 @@ def test_shipped_policy_is_the_documented_run() -> None:
     assert shipped_signal_policy_path("pa-dqn", 1, 1) == shipped_pa_dqn_path(1, 1)
     shipped = CoderPolicy.load(shipped_policy_path())
     assert (shipped.rows, shipped.cols) == (3, 3)
-    assert shipped.settings == CoderSettings().to_dict()  # `mivecc train-coder --out DIR`
+    # its documented command; trained before keep_network existed: the last network
+    assert shipped.settings == CoderSettings(keep_network="last").to_dict()
 
 
 def test_shipped_policy_keeps_its_documented_place_among_the_signals() -> None:
@@ -381,3 +382,42 @@ def test_the_xeon_retrained_regional_network_is_the_poor_one() -> None:
                                   policies={"signal": p}, progress=False)
             assert [round(np.mean([r["throughput"] for r in runs if r["density"] == d]))
                     for d in (300.0, 1200.0, 2100.0)] == out, path
+
+
+def test_keep_best_keeps_the_best_validated_network_of_each_stage(tmp_path, capsys) -> None:
+    from mivecc_agents.signal_dqn import kept_episodes
+
+    # no exploration decay: every episode validated, and a shorter regional stage is the
+    # longer one's beginning
+    base = {**TINY.to_dict(), "episodes": 3, "global_episodes": 2, "eps_start": 0.2,
+            "eps_end": 0.2, "global_eps_start": 0.2, "densities": (900.0, 2100.0)}
+    best, log = train_coder(CoderSettings(**base))  # keep_network="best", the default
+    _, last_log = train_coder(CoderSettings(**{**base, "keep_network": "last"}))
+    for row, same in zip(log, last_log, strict=True):  # the same until the regional stage ends
+        if row["stage"] == 1:
+            np.testing.assert_equal([row["throughput"], row["loss"]],
+                                    [same["throughput"], same["loss"]])
+    kept = kept_episodes(log)
+    assert [k[0] for k in kept] == [1, 2] and all(np.isfinite(r["validation_throughput"])
+                                                  for r in log)
+    for stage, episode, value, _ in kept:
+        values = [r["validation_throughput"] for r in log if r["stage"] == stage]
+        first = min(r["episode"] for r in log if r["stage"] == stage)
+        assert value == max(values) and episode == first + values.index(value)
+    # the kept regional network is the one a regional stage of that many episodes ends with
+    prefix, _ = train_coder(CoderSettings(**{**base, "episodes": kept[0][1],
+                                              "keep_network": "last"}))
+    for a, b in zip(best.regional.parameters(), prefix.regional.parameters(), strict=True):
+        assert torch.equal(a, b)
+    out = tmp_path / "best"
+    assert cli.main(["train-coder", "--out", str(out), "--episodes", "1", "--global-episodes",
+                     "1", "--batch", "1", "--episode-steps", "200", "--warmup", "1",
+                     "--densities", "900", "--rows", "2", "--cols", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "validation " in err and ("mivecc: kept the network of the best greedy validation "
+                                     "run after episode 1 (stage 1): ") in err
+    assert "; after episode 2 (stage 2): " in err
+    assert "validation_throughput" in (out / "train_log.csv").read_text().splitlines()[0]
+    assert CoderPolicy.load(out / "coder.pt").settings["keep_network"] == "best"
+    assert cli.main(["train-coder", "--out", str(out), "--keep-network", "first"]) == 2
+    assert "--keep-network: invalid choice: 'first'" in capsys.readouterr().err

@@ -15,9 +15,14 @@ from mivecc_agents.evaluation import evaluate_batch, evaluate_scheme
 from mivecc_agents.policies import load_policy, pretrained_path
 from mivecc_agents.signal_dqn import (
     HeldPhases,
+    KeptNetwork,
     SignalDQNPolicy,
+    greedy_throughput,
+    kept_episodes,
+    kept_note,
     shipped_policy_path,
     train_signal_dqn,
+    training_env,
 )
 from mivecc_agents.signal_dqn_settings import SignalDQNSettings
 from mivecc_env.config import ConfigError
@@ -41,6 +46,7 @@ def tiny_run():
     ("config", {"rows": 2}, r"config: rows is set by the training settings"),
     ("config", {"omega": 7.0}, r"omega"),
     ("batch", True, r"batch: must be an integer"),
+    ("keep_network", "first", r"keep_network: must be one of best, last, got 'first'"),
 ])
 def test_settings_name_the_bad_field(field: str, value, message: str) -> None:
     with pytest.raises(ConfigError, match=message):
@@ -126,7 +132,9 @@ def test_shipped_policy_batch_equals_single_runs_and_repeats() -> None:
         shipped = SignalDQNPolicy.load(shipped_policy_path(rows, cols))
         assert shipped.decision_period_s == 10.0
         # made by the documented commands: the default settings on that grid
-        assert shipped.settings == SignalDQNSettings(rows=rows, cols=cols).to_dict()
+        # (trained before keep_network existed: the last network)
+        assert shipped.settings == SignalDQNSettings(rows=rows, cols=cols,
+                                                     keep_network="last").to_dict()
     policy = SignalDQNPolicy.load(shipped_policy_path(2, 2))
     batch = evaluate_batch("pa-dqn", 2, 2, [900, 1800], 600, [0, 1],
                            policies={"signal": policy}, progress=False)
@@ -173,3 +181,66 @@ def test_shipped_policy_moves_more_traffic_than_the_classical_signals(grid: int)
     for scheme in ("fixed-time", "max-pressure"):
         assert learned["throughput"] > evaluate_scheme(scheme, **kw)["throughput"], scheme
     assert learned["collisions"] == 0
+
+
+def test_kept_network_restores_the_best_scored_state_the_earlier_of_ties() -> None:
+    net = torch.nn.Linear(2, 1)
+    scores = iter([1.0, 3.0, 3.0, 2.0])
+    keeper = KeptNetwork(net, lambda: next(scores))
+    states = []
+    for value in range(4):
+        net.weight.data.fill_(float(value))
+        states.append(keeper.consider())
+    assert states == [1.0, 3.0, 3.0, 2.0]
+    keeper.restore()
+    assert torch.equal(net.weight, torch.full((1, 2), 1.0))  # the state scored first at 3
+    KeptNetwork(net, lambda: 0.0).restore()  # nothing considered: nothing changes
+    assert torch.equal(net.weight, torch.full((1, 2), 1.0))
+
+
+def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_network() -> None:
+    # no exploration decay: every episode is validated, and the first k episodes of a longer
+    # run are the whole of a k-episode run
+    base = {**TINY.to_dict(), "episodes": 3, "eps_start": 0.3, "eps_end": 0.3,
+            "densities": (900.0, 1800.0)}
+    best, log = train_signal_dqn(SignalDQNSettings(**base))  # keep_network="best", the default
+    _, last_log = train_signal_dqn(SignalDQNSettings(**{**base, "keep_network": "last"}))
+    assert "validation_throughput" not in last_log[0]
+    for row, same in zip(log, last_log, strict=True):
+        assert {k: v for k, v in row.items() if k not in ("wall_s", "validation_throughput")} \
+            == {k: v for k, v in same.items() if k != "wall_s"}
+    validated = [r["validation_throughput"] for r in log]
+    assert all(np.isfinite(validated)) and best.settings["keep_network"] == "best"
+    [(stage, episode, value, latest)] = kept_episodes(log)
+    assert (stage, value, latest) == (1, max(validated), validated[-1])
+    assert episode == 1 + validated.index(max(validated))
+    prefix, _ = train_signal_dqn(SignalDQNSettings(**{**base, "episodes": episode,
+                                                      "keep_network": "last"}))
+    for a, b in zip(best.net.parameters(), prefix.net.parameters(), strict=True):
+        assert torch.equal(a, b)
+    cfg = SignalDQNSettings(**base).env_config()
+    env = training_env(SignalDQNSettings(**base), cfg, batch=2)
+    again = greedy_throughput(SignalDQNSettings(**base), env,
+                              lambda obs: best(obs.reshape(-1, 15)).reshape(obs.shape[:2]))
+    assert again == value  # the kept network's validation run, repeated
+    assert kept_note(log).startswith(f"kept the network of the best greedy validation run "
+                                     f"after episode {episode}: {value:.1f} vehicles out")
+    assert kept_note(last_log) is None
+
+
+def test_validation_counts_once_the_exploration_has_decayed_and_at_the_end() -> None:
+    _, log = train_signal_dqn(SignalDQNSettings(**{
+        **TINY.to_dict(), "episodes": 4, "eps_decay_fraction": 0.5, "keep_network": "best",
+        "densities": TINY.densities}))
+    # 3 decisions per episode, decay over 6: the last decision of episode 3 explores at eps_end
+    assert [np.isfinite(r["validation_throughput"]) for r in log] == [False, False, True, True]
+    _, log = train_signal_dqn(SignalDQNSettings(**{
+        **TINY.to_dict(), "episodes": 2, "eps_decay_fraction": 1.0, "keep_network": "best",
+        "densities": TINY.densities}))
+    assert [np.isfinite(r["validation_throughput"]) for r in log] == [False, True]  # the last
+
+
+def test_checkpoints_from_before_keep_network_kept_the_last_network() -> None:
+    for rows, cols in ((1, 1), (3, 3)):
+        shipped = SignalDQNPolicy.load(shipped_policy_path(rows, cols))
+        assert shipped.settings["keep_network"] == "last"
