@@ -1852,3 +1852,61 @@ def test_keeping_the_best_validated_network() -> None:
     assert (f"lets out {out(coder, 'best_without_rule')} vehicles against the shipped one's "
             f"{out(coder, 'shipped')} (EEC's lead {lead('best_without_rule')};") in " ".join(
         RESULTS.split())
+
+
+def test_keeping_the_best_validated_network_over_training_seeds() -> None:
+    """docs/comparators.md, "Three training seeds, with the keep-clear rule (the defaults), both
+    ways": the same trainings, and what the kept networks change."""
+    import csv
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    results = ROOT / "docs" / "results"
+    pa_dir = results / "pa_dqn" / "keep_best_3x3" / "training_seeds"
+    coder_dir = results / "coder" / "keep_best" / "training_seeds"
+
+    def log(path: Path) -> list[dict]:
+        with open(path / "train_log.csv", newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+
+    for best, last, same_rows in (
+            (pa_dir / "best_seed0", results / "pa_dqn" / "trained_with_keep_clear_3x3" /
+             "with_rule", 40),
+            (pa_dir / "best_seed1", pa_dir / "last_seed1", 40),
+            (pa_dir / "best_seed2", pa_dir / "last_seed2", 40),
+            (results / "coder" / "keep_best" / "with_rule",
+             results / "coder" / "trained_with_keep_clear" / "with_rule", 30),
+            (coder_dir / "best_seed1", coder_dir / "last_seed1", 30),
+            (coder_dir / "best_seed2", coder_dir / "last_seed2", 30)):
+        a, b = log(best), log(last)
+        columns = [c for c in b[0] if c != "wall_s"]
+        equal = [all(x[c] == y[c] for c in columns) for x, y in zip(a, b, strict=True)]
+        assert equal == [True] * same_rows + [False] * (len(a) - same_rows), best
+    cells = {name: _policy_cells(folder / "learned_policies.csv")
+             for name, folder in (("pa", pa_dir), ("coder", coder_dir))}
+
+    def count(name: str, index: int, better) -> int:
+        c = cells[name]
+        return sum(better(c[f"best_seed{s}", d][index], c[f"last_seed{s}", d][index])
+                   for s in range(3) for d in DENSITIES)
+
+    def sums(name: str) -> str:
+        c = cells[name]
+        return ", ".join(f"{sum(c[f'best_seed{s}', d][2] for d in DENSITIES):.0f} against "
+                         f"{sum(c[f'last_seed{s}', d][2] for d in DENSITIES):.0f}"
+                         for s in range(3))
+
+    assert all(v[1] == 0 for c in cells.values() for v in c.values())  # no collision
+    assert (f"(means over evaluation seeds 0-2) {sums('pa')} (PA-DQN, seeds 0, 1, 2) and "
+            f"{sums('coder')} (Coder), and in {count('pa', 2, float.__gt__)} of 21 cells for "
+            f"PA-DQN and {count('coder', 2, float.__gt__)} of 21 for Coder") in docs
+    assert all(sum(cells[n][f"best_seed{s}", d][2] for d in DENSITIES)
+               > sum(cells[n][f"last_seed{s}", d][2] for d in DENSITIES)
+               for n in cells for s in range(3))
+    coder, pa = cells["coder"], cells["pa"]
+    assert f"(faster in {count('coder', 0, float.__gt__)} of 21 cells;" in docs
+    assert all(coder[f"best_seed{s}", d][0] > coder[f"last_seed{s}", d][0]
+               for s in (1, 2) for d in DENSITIES)
+    assert f"which is faster in only {count('pa', 0, float.__gt__)} of 21 cells" in docs
+    slower_high = sum(pa[f"best_seed{s}", d][0] < pa[f"last_seed{s}", d][0]
+                      for s in range(3) for d in DENSITIES[3:])
+    assert f"(slower in {slower_high} of the 12 cells from 1200 veh/lane/h on)" in docs
