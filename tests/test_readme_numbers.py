@@ -1910,3 +1910,36 @@ def test_keeping_the_best_validated_network_over_training_seeds() -> None:
     slower_high = sum(pa[f"best_seed{s}", d][0] < pa[f"last_seed{s}", d][0]
                       for s in range(3) for d in DENSITIES[3:])
     assert f"(slower in {slower_high} of the 12 cells from 1200 veh/lane/h on)" in docs
+
+
+def test_keeping_the_best_validated_network_on_the_single_intersection() -> None:
+    """docs/comparators.md, "On the single intersection it changes little"."""
+    import csv
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    here = ROOT / "docs" / "results" / "pa_dqn" / "keep_best_1x1" / "training_seeds"
+
+    def log(path: Path) -> list[dict]:
+        with open(path / "train_log.csv", newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+
+    validated = []
+    for seed in range(3):
+        best, last = log(here / f"best_seed{seed}"), log(here / f"last_seed{seed}")
+        columns = [c for c in last[0] if c != "wall_s"]
+        assert all(all(x[c] == y[c] for c in columns) for x, y in zip(best, last, strict=True))
+        validated += [float(r["validation_throughput"]) for r in best
+                      if r["validation_throughput"] != "nan"]
+    rerun = log(ROOT / "docs" / "results" / "pa_dqn" / "train_1x1_rerun_xeon")
+    columns = [c for c in rerun[0] if c != "wall_s"]
+    assert all(all(x[c] == y[c] for c in columns)
+               for x, y in zip(log(here / "last_seed0"), rerun, strict=True))
+    c = _policy_cells(here / "learned_policies.csv")
+    pairs = [(c[f"best_seed{s}", d], c[f"last_seed{s}", d]) for s in range(3) for d in DENSITIES]
+    assert all(b[1] == 0 == a[1] for b, a in pairs)
+    largest = max(abs(b[0] - a[0]) for b, a in pairs)
+    assert (f"stay within {min(validated):.1f}-{max(validated):.1f} vehicles out, so the kept "
+            f"network is about as good as the last one; over the 21 cells it lets out more in "
+            f"{sum(b[2] > a[2] for b, a in pairs)}, fewer in {sum(b[2] < a[2] for b, a in pairs)}, "
+            f"and is faster in {sum(b[0] > a[0] for b, a in pairs)}, by at most {largest:.2f} m/s"
+            ) in docs
