@@ -8,7 +8,8 @@ runs both CSVs hold (same grid, scheme, density and seed) this prints and writes
 * per scheme, how many runs are identical in average travel velocity, released-style velocity
   and strict collision events, and how many in every column both CSVs have but the timings
   (:data:`TIMINGS`; a later CSV may have columns an earlier one lacks, such as config fields
-  added since, and a cell empty in either, a run made before its column existed, is skipped);
+  added since, and a cell empty in either, a run made before its column existed, is skipped),
+  and the columns that differ with the number of runs differing in each;
 * per grid and metric (average travel and released-style velocity), the gains EE vs E, EEC vs
   EE and EEC vs E [%] per density (of the means over seeds, as ``paper_table.md`` computes
   them) in either run, and the largest difference;
@@ -70,6 +71,16 @@ def identical_runs(a: list[dict[str, Any]], b: list[dict[str, Any]],
     return {s: (c[0], c[1]) for s, c in out.items()}
 
 
+def differing_columns(a: list[dict[str, Any]], b: list[dict[str, Any]],
+                      columns: Sequence[str]) -> dict[str, int]:
+    """``column -> runs in both that differ in it``, for the ``columns`` that differ anywhere
+    (in ``columns``' order; empty cells skipped as in :func:`identical_runs`)."""
+    ra, rb = _runs(a), _runs(b)
+    keys = set(ra) & set(rb)
+    counts = {c: sum(not _same(ra[k].get(c), rb[k].get(c)) for k in keys) for c in columns}
+    return {c: n for c, n in counts.items() if n}
+
+
 def shared_columns(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> list[str]:
     """The columns both tables have, but :data:`RUN_KEY` and :data:`TIMINGS`, in ``a``'s
     order."""
@@ -115,6 +126,10 @@ def diff_markdown(a: list[dict[str, Any]], b: list[dict[str, Any]], names: Seque
              "|---|---|---|"]
     lines += [f"| {s} | {i} / {n} | {every[s][0]} / {n} |"
               for s, (i, n) in identical_runs(a, b).items()]
+    differ = differing_columns(a, b, columns)
+    if differ:
+        lines += ["", "Columns that differ (runs in both that differ in each): "
+                  + ", ".join(f"{c} {n}" for c, n in differ.items()) + "."]
     for grid in sorted({(r["rows"], r["cols"]) for r in common}):
         densities = sorted({r["density"] for r in common if (r["rows"], r["cols"]) == grid})
         head = "| | " + " | ".join(f"{d:g}" for d in densities) + " | largest difference |"

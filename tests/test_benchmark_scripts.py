@@ -321,6 +321,9 @@ def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> 
     assert columns == ["avg_travel_velocity_mps", "released_velocity_mps", "collisions",
                        "throughput", "min_pet_s"]
     assert table_diff.identical_runs(a, b, columns) == {"E": (1, 2), "EE": (1, 2)}
+    assert table_diff.differing_columns(a, b, columns) == {
+        "avg_travel_velocity_mps": 1, "released_velocity_mps": 1, "collisions": 1,
+        "throughput": 1}
     assert table_diff.gains(a, (1, 1), [900], "avg_travel_velocity_mps")["EE vs E"] == [10.0]
     assert table_diff.gains(b, (1, 1), [900], "avg_travel_velocity_mps")["EE vs E"] == [15.0]
     assert table_diff.events(b, "EE", (1, 1), [900]) == [2]
@@ -333,6 +336,8 @@ def test_table_diff_counts_identical_runs_and_compares_gains(tmp_path: Path) -> 
                             "Y", "--out", str(tmp_path / "diff.md")])
     assert "| E | 2 / 2 | 1 / 2 |" in text and "| EE | 1 / 2 | 1 / 2 |" in text
     assert "in all 5 columns both tables have but the timings" in text
+    assert ("Columns that differ (runs in both that differ in each): avg_travel_velocity_mps 1, "
+            "released_velocity_mps 1, collisions 1, throughput 1.") in text
     assert "| EE vs E, Y | +15.00 | 5.00 |" in text
     assert "| EE, Y | 2 | 2 |" in text and "| EEC, " not in text  # no EEC runs: no EEC rows
     assert (tmp_path / "diff.md").read_text().startswith("Command: `python benchmarks/table_diff")
