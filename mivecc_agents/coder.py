@@ -311,7 +311,8 @@ def training_shortfall(log: Sequence[Mapping[str, float]]) -> str | None:
     """A one-line warning when a training ended with networks that move fewer vehicles than its
     regional stage did: the mean ``throughput`` (vehicles out per training environment) of the
     last :data:`SHORTFALL_EPISODES` episodes of each ``stage`` of a training log, the
-    aggregation stage's (which acts with the final, frozen regional network) below
+    aggregation stage's (which acts with the frozen regional network the first stage returned:
+    its last, or its best-validated with ``keep_network="best"``) below
     :data:`SHORTFALL_SHARE` of the regional stage's; None otherwise or without both stages.
 
     Both stages explore (their own epsilon), so this is a coarse check: it flags a training such

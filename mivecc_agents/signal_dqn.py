@@ -248,11 +248,19 @@ def greedy_throughput(settings: SignalDQNSettings, env: Any,
     period = decision_steps(settings.decision_period_s, env.config.dt_s)
     obs = env.reset(seed=VALIDATION_SEED).signal_obs
     for _ in range(settings.episode_steps // period):
-        phases = greedy(obs)
-        for _ in range(period):
-            out = env.step(signal_action=phases)
-        obs = out.signal_obs
+        obs, _ = hold_phases(env, greedy(obs), period)
     return float(env.summary()["throughput"].mean())
+
+
+def hold_phases(env: Any, phases: np.ndarray, period: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step ``env`` ``period`` times with the signal ``phases`` ``(B, n_int)`` held; returns
+    the signal observations after the last step and each intersection's reward summed over
+    the period ``(B, n_int)`` (vehicles through its centre)."""
+    reward = np.zeros(phases.shape)
+    for _ in range(period):
+        out = env.step(signal_action=phases)
+        reward += out.signal_reward
+    return out.signal_obs, reward
 
 
 class KeptNetwork:
@@ -399,12 +407,8 @@ def run_episodes(settings: SignalDQNSettings, env: Any,
             frac = min(1.0, done_decisions / decay)
             eps = eps_start + frac * (settings.eps_end - eps_start)
             phases = act(obs, eps)
-            reward = np.zeros(phases.shape)
-            for _ in range(period):
-                out = env.step(signal_action=phases)
-                reward += out.signal_reward
+            next_obs, reward = hold_phases(env, phases, period)
             reward *= settings.reward_scale
-            next_obs = out.signal_obs
             loss = learn(obs, phases, reward, next_obs)
             if loss is not None:
                 losses.append(loss)
