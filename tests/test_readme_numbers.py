@@ -1232,6 +1232,13 @@ def test_session46_rerun_on_the_xeon_equals_session21_in_every_column():
         counts = table_diff.identical_runs(a, b, columns)
         assert counts == {s: (42, 42) for s in ("E", "EE", "EE+3", "EEC", "EEC+3",
                                                 "signalized")}, model
+        assert table_diff.differing_columns(a, b, columns) == {}
+        # against the committed (AMD EPYC) table: the rules-only runs identical in every column
+        published = [r for r in read_runs_csv(ROOT / "docs" / "results" / (
+            "paper_table" if model == "default" else "paper_table_released") / "paper_table.csv")
+            if r["scheme"] != "coder"]
+        every = table_diff.identical_runs(published, b, table_diff.shared_columns(published, b))
+        assert all(every[s] == (42, 42) for s in ("E", "EE+3", "signalized")), model
     assert "252 of 252 per model, learned policies included, in every one of the 36 columns" in (
         training)
     assert "equal session 21's reruns there in every column of all 504 runs" in " ".join(
@@ -1943,3 +1950,66 @@ def test_keeping_the_best_validated_network_on_the_single_intersection() -> None
             f"{sum(b[2] > a[2] for b, a in pairs)}, fewer in {sum(b[2] < a[2] for b, a in pairs)}, "
             f"and is faster in {sum(b[0] > a[0] for b, a in pairs)}, by at most {largest:.2f} m/s"
             ) in docs
+
+
+
+def test_keeping_the_best_validated_network_costs() -> None:
+    """docs/comparators.md, "Keeping the best-validated network": the training times next to
+    the commands are the logs' last ``wall_s``; the cost per validated episode and in all."""
+    import csv
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    results = ROOT / "docs" / "results"
+
+    def log(folder: str) -> list[dict]:
+        with open(results / folder / "train_log.csv", newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+
+    def clock(folder: str) -> str:
+        seconds = round(float(log(folder)[-1]["wall_s"]))
+        return f"{seconds // 60} min {seconds % 60} s"
+
+    pa, co = "pa_dqn/keep_best_3x3", "coder/keep_best"
+    ps, cs = f"{pa}/training_seeds", f"{co}/training_seeds"
+    for runs, text in (
+            ([f"{co}/without_rule"], "coder_off_best # {} of training"),
+            ([f"{co}/with_rule"], "coder_kc_best # {} of training"),
+            ([f"{pa}/without_rule"], "pa_dqn_3x3_off_best # {} of training"),
+            ([f"{ps}/best_seed1", f"{ps}/best_seed0", f"{ps}/best_seed2"],
+             "pa_dqn_best_seed1 # {} of training; --seed 0, 2: {}, {}"),
+            ([f"{ps}/last_seed1", f"{ps}/last_seed2"],
+             "pa_dqn_last_seed1 # {} of training; --seed 2: {}"),
+            ([f"{cs}/best_seed1", f"{cs}/best_seed2"],
+             "coder_best_seed1 # {} of training; --seed 2: {}"),
+            ([f"{cs}/last_seed1", f"{cs}/last_seed2"],
+             "coder_last_seed1 # {} of training; --seed 2: {}")):
+        assert text.format(*(clock(r) for r in runs)) in docs, text
+    one = "pa_dqn/keep_best_1x1/training_seeds"
+    best = sorted(float(log(f"{one}/best_seed{s}")[-1]["wall_s"]) for s in range(3))
+    last = sorted(float(log(f"{one}/last_seed{s}")[-1]["wall_s"]) for s in range(3))
+
+    def short(seconds: float) -> str:
+        seconds = round(seconds)
+        return f"{seconds // 60} min {seconds % 60} s"
+
+    assert (f"{short(best[0])}-{short(best[-1])} of training keeping the best, "
+            f"{short(last[0])}-{short(last[-1])} the last") in docs
+    # per episode, in the three runs: validated against not validated
+    validated, plain = [], []
+    for folder in (f"{co}/without_rule", f"{co}/with_rule", f"{pa}/without_rule"):
+        rows = log(folder)
+        wall = np.diff([0.0] + [float(r["wall_s"]) for r in rows])
+        checked = np.array([r["validation_throughput"] != "nan" for r in rows])
+        validated.append(wall[checked].mean())
+        plain.append(wall[~checked].mean())
+    assert (f"a validated episode {min(validated):.1f}-{max(validated):.1f} s against "
+            f"{min(plain):.1f}-{max(plain):.1f} s in the three runs below") in docs
+    ratios = []
+    for best_runs, last_runs in (([f"{ps}/best_seed{s}" for s in range(3)],
+                                  [f"{ps}/last_seed{s}" for s in (1, 2)]),
+                                 ([f"{cs}/best_seed{s}" for s in (1, 2)],
+                                  [f"{cs}/last_seed{s}" for s in (1, 2)])):
+        ratios.append(np.mean([float(log(r)[-1]["wall_s"]) for r in best_runs])
+                      / np.mean([float(log(r)[-1]["wall_s"]) for r in last_runs]))
+    share = sorted(round(100 * (r - 1)) for r in ratios)
+    assert docs.count(f"{share[0]}-{share[-1]} % more training time at the defaults") == 2
