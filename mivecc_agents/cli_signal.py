@@ -90,8 +90,12 @@ class TrainCommand(NamedTuple):
     log_module: str  #: the module with ``write_log``, ``plot_learning_curve``, ``progress_line``
     #: each ``(log) -> str | None``: a note (or a warning) about the finished training, or None
     log_checks: tuple[str, ...] = ()
+    #: whether the trainer takes ``on_validated(row, policy)`` (then ``--save-validated``)
+    validated: bool = False
 
 
+#: Folder in ``--out`` of ``--save-validated``'s networks.
+VALIDATED_DIR = "validated"
 #: The training commands by name.
 TRAIN_COMMANDS = {
     "train-signal": TrainCommand("mivecc_agents.signal_dqn_settings:SignalDQNSettings",
@@ -116,7 +120,8 @@ TRAIN_COMMANDS = {
                        "Train CoMADDPG (every vehicle in a control area an agent: one shared "
                        "actor on its virtual-lane view, a centralised critic with its reference "
                        "vehicles' actions, MADDPG) on 3x3, or on another grid with "
-                       "--rows/--cols; docs/comparators.md.", "mivecc_agents.comaddpg"),
+                       "--rows/--cols; docs/comparators.md.", "mivecc_agents.comaddpg",
+                       ("mivecc_agents.comaddpg:kept_note",), validated=True),
 }
 
 
@@ -170,6 +175,10 @@ def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
                    help="a MiVeCCConfig field of the training environments (repeatable)")
     p.add_argument("--threads", type=cli_args.count(1), default=1,
                    help="torch threads (default 1: fastest for these small networks)")
+    if command.validated:
+        p.add_argument("--save-validated", action="store_true",
+                       help=f"also write every validated network to {VALIDATED_DIR}/"
+                       "episode_NN.pt in --out (with --keep-network best)")
     p.set_defaults(func=cmd_train_signal, train_command=name)
     return p
 
@@ -199,7 +208,17 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
     def progress(row: dict[str, float]) -> None:
         print(logs.progress_line(row, total), file=sys.stderr, flush=True)
 
-    policy, log = _attr(command.trainer)(settings, on_episode=progress)
+    extra: dict[str, Any] = {}
+    if getattr(args, "save_validated", False):
+        if settings.keep_network != "best":
+            raise ConfigError("--save-validated: needs --keep-network best (with last no "
+                              "network is validated)")
+
+        def save_validated(row: dict[str, float], validated: Any) -> None:
+            validated.save(out / VALIDATED_DIR / f"episode_{row['episode']:02.0f}.pt")
+
+        extra["on_validated"] = save_validated
+    policy, log = _attr(command.trainer)(settings, on_episode=progress, **extra)
     path = policy.save(out / command.checkpoint)  # its settings say how it was trained
     logs.write_log(log, out / "train_log.csv")
     logs.plot_learning_curve(log, out / "learning_curve.png")

@@ -30,7 +30,11 @@ follows (the rest is this package's reading, ``docs/comparators.md``):
   each vehicle's acceleration, held for ``noise_hold_steps`` steps (a braking or a push long
   enough to change whether two vehicles meet at a conflict point: with noise drawn anew every
   0.1 s, a DDPG actor settled at +3 m/s^2 everywhere in a pilot) and decaying linearly, one
-  update per step of the batch after the warm-up.
+  update per step of the batch after the warm-up. With ``keep_network="best"`` (the default)
+  the actor returned is the one whose greedy run on validation environments had the fewest
+  strict collision events, ties by the highest average travel velocity
+  (:func:`greedy_validation`, :func:`validation_key`; validated once the noise has decayed),
+  not the last one.
 
 A trained policy is :class:`CoMADDPGPolicy`; ``mivecc evaluate --scheme comaddpg`` runs the
 shipped one (:data:`SHIPPED_PATH`, trained on 3x3, for every grid), ``mivecc
@@ -39,9 +43,10 @@ train-comaddpg`` trains one.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -52,7 +57,15 @@ from torch import nn
 
 from mivecc_agents.checkpoints import corrupt_policy, read_policy_file, save_checkpoint
 from mivecc_agents.comaddpg_settings import CoMADDPGSettings
-from mivecc_agents.signal_dqn import FIRST_TRAIN_SEED, SHIPPED_DIR, save_figure, write_log
+from mivecc_agents.signal_dqn import (
+    FIRST_TRAIN_SEED,
+    SHIPPED_DIR,
+    VALIDATION_SEED,
+    KeptNetwork,
+    save_figure,
+    saved_settings,
+    write_log,
+)
 from mivecc_env.config import MiVeCCConfig
 from mivecc_env.sim.core import StepEvents
 from mivecc_env.vehicle_agents import (
@@ -66,6 +79,8 @@ from mivecc_env.vehicle_agents import (
 __all__ = ["SHIPPED_PATH", "CoMADDPGPolicy", "CoMADDPGSettings", "VehicleActor",
            "VehicleCritic", "progress_line", "train_comaddpg", "write_log"]
 
+#: The log columns of a validation run (:func:`greedy_validation`).
+VALIDATION_COLUMNS = ("validation_collisions", "validation_reward", "validation_velocity")
 #: ``kind`` of a CoMADDPG checkpoint.
 VEHICLE_KIND = "comaddpg"
 #: The shipped policy (in the package), trained on 3x3 and used on every grid: a vehicle's view
@@ -149,8 +164,7 @@ class CoMADDPGPolicy:
         arr = np.asarray(obs, dtype=np.float32)
         if arr.ndim != 3 or arr.shape[1:] != (self.k, 3):
             raise ValueError(f"obs: expected shape (n, {self.k}, 3), got {arr.shape}")
-        with torch.no_grad():
-            return self.actor(torch.from_numpy(arr))[:, 0].numpy().astype(np.float64)
+        return greedy_accelerations(self.actor, arr)
 
     def save(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
         """Write the policy as a mivecc checkpoint (``kind="comaddpg"``)."""
@@ -173,7 +187,16 @@ class CoMADDPGPolicy:
                 raise ValueError(f"k {k}, hidden {hidden}, a_max {a_max}")
             actor = VehicleActor(k, hidden, a_max)
             actor.load_state_dict(data["network"])
-        return cls(actor, dict(data["settings"]), checkpoint=str(path))
+        return cls(actor, saved_settings(data), checkpoint=str(path))
+
+
+def greedy_accelerations(actor: VehicleActor, obs: np.ndarray) -> np.ndarray:
+    """(n,) float64 accelerations [m/s^2] the actor gives observations ``(n, k, 3)``."""
+    if obs.shape[0] == 0:
+        return np.zeros(0)
+    with torch.no_grad():
+        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
+        return actor(x)[:, 0].numpy().astype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -324,17 +347,68 @@ class VehicleLearner:
         return critic_total / s.updates_per_step, actor_total / s.updates_per_step
 
 
-def training_env(settings: CoMADDPGSettings, cfg: MiVeCCConfig) -> Any:
-    """``settings.batch`` environments with the densities of ``settings.densities`` cycled
-    over them (no graphs observed: the vehicles observe themselves)."""
+def training_env(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
+                 batch: int | None = None) -> Any:
+    """``batch`` (default ``settings.batch``) environments with the densities of
+    ``settings.densities`` cycled over them (no graphs observed: the vehicles observe
+    themselves)."""
     from mivecc_env.batched import BatchedMiVeCCEnv
 
-    densities = [settings.densities[i % len(settings.densities)] for i in range(settings.batch)]
-    return BatchedMiVeCCEnv(cfg, batch_size=settings.batch, densities=densities, observe=())
+    batch = settings.batch if batch is None else batch
+    densities = [settings.densities[i % len(settings.densities)] for i in range(batch)]
+    return BatchedMiVeCCEnv(cfg, batch_size=batch, densities=densities, observe=())
+
+
+def greedy_validation(settings: CoMADDPGSettings, env: Any,
+                      actor: VehicleActor) -> dict[str, float]:
+    """A run of ``settings.episode_steps`` steps from an empty network on the seeds from
+    :data:`VALIDATION_SEED`, every agent executing the actor's acceleration (no exploration,
+    no learning): ``validation_collisions`` (strict collision events, all of ``env``'s
+    environments), ``validation_reward`` (mean reward per vehicle-step, the training reward)
+    and ``validation_velocity`` (average travel velocity [m/s], mean over the
+    environments)."""
+    cfg, b = env.config, env.batch_size
+    env.reset(seed=VALIDATION_SEED)
+    agents = observe_vehicles(env.sim, settings.k)
+    collisions, reward_sum, transitions_n = 0, 0.0, 0
+    for _ in range(settings.episode_steps):
+        action = greedy_accelerations(actor, agents.obs)
+        env.step_vehicles(vehicle_commands(agents, action, b))
+        events = env.sim.last_events
+        collisions += int(events.collision_events.sum())
+        nxt = observe_vehicles(env.sim, settings.k)
+        reward = vehicle_rewards(agents, action, nxt, events, cfg, settings.collision_penalty,
+                                 settings.safety_weight)
+        reward_sum, transitions_n = reward_sum + float(reward.sum()), transitions_n + reward.size
+        agents = nxt
+    return {"validation_collisions": collisions,
+            "validation_reward": reward_sum / transitions_n if transitions_n else math.nan,
+            "validation_velocity": float(np.nanmean(env.summary()["avg_travel_velocity_mps"]))}
+
+
+def validation_key(measures: Mapping[str, float]) -> tuple[float, float]:
+    """The order of validation runs (:func:`greedy_validation`), the comparison's two
+    measures: fewer strict collision events first, then a higher average travel velocity
+    (NaN, no vehicle finished, ranks last). Not the reward per vehicle-step: its safety term
+    dominates it and ranks the slowest actors first, which collided no less in the
+    evaluation (docs/comparators.md, "Keeping the best-validated actor")."""
+    velocity = measures["validation_velocity"]
+    return -measures["validation_collisions"], -math.inf if math.isnan(velocity) else velocity
+
+
+def keeper(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
+           actor: VehicleActor) -> KeptNetwork | None:
+    """The keeper of ``actor`` for ``settings`` (None with ``keep_network="last"``): one
+    validation environment per entry of ``settings.densities``."""
+    if settings.keep_network != "best":
+        return None
+    env = training_env(settings, cfg, batch=len(settings.densities))
+    return KeptNetwork(actor, lambda: greedy_validation(settings, env, actor), validation_key)
 
 
 def train_comaddpg(settings: CoMADDPGSettings,
                    on_episode: Callable[[dict[str, float]], None] | None = None,
+                   on_validated: Callable[[dict[str, float], CoMADDPGPolicy], None] | None = None,
                    ) -> tuple[CoMADDPGPolicy, list[dict[str, float]]]:
     """Train a CoMADDPG policy (module docstring); returns it and one log row per episode.
 
@@ -344,7 +418,10 @@ def train_comaddpg(settings: CoMADDPGSettings,
     ``reward_per_transition``, ``collisions`` (strict collision events of the episode, all
     environments), ``avg_travel_velocity_mps`` and ``throughput`` (means over the
     environments), ``critic_loss`` and ``actor_loss`` (NaN before the first update),
-    ``wall_s``.
+    ``wall_s``; with ``keep_network="best"`` also :func:`greedy_validation`'s measures after
+    every episode that ended with the noise decayed to ``noise_end`` and after the last one
+    (NaN after the others); the best actor (:func:`validation_key`) is restored at the end,
+    and ``on_validated(row, policy)`` gets each validated actor (a copy) with its log row.
     """
     settings.check()
     cfg = settings.env_config()
@@ -357,6 +434,7 @@ def train_comaddpg(settings: CoMADDPGSettings,
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(settings.seed)
         learner = VehicleLearner(settings, a_max)
+        keep = keeper(settings, cfg, learner.actor)
         rng = np.random.default_rng(settings.seed)
         for episode in range(settings.episodes):
             first = FIRST_TRAIN_SEED + settings.seed * 1_000_000 + episode * b
@@ -395,37 +473,94 @@ def train_comaddpg(settings: CoMADDPGSettings,
                        summary["avg_travel_velocity_mps"])),
                    "throughput": float(summary["throughput"].mean()),
                    "critic_loss": float(np.mean(critic_losses)) if critic_losses else math.nan,
-                   "actor_loss": float(np.mean(actor_losses)) if actor_losses else math.nan,
-                   "wall_s": time.perf_counter() - t0}
+                   "actor_loss": float(np.mean(actor_losses)) if actor_losses else math.nan}
+            if keep is not None:
+                # the episode ended with the noise decayed to noise_end (or there is no decay)
+                decayed = frac >= 1.0 or settings.noise_start == settings.noise_end
+                if decayed or episode == settings.episodes - 1:
+                    row.update(keep.consider())
+                    if on_validated is not None:
+                        on_validated(row, CoMADDPGPolicy(copy.deepcopy(learner.actor),
+                                                         settings.to_dict()))
+                else:
+                    row.update(dict.fromkeys(VALIDATION_COLUMNS, math.nan))
+            row["wall_s"] = time.perf_counter() - t0
             log.append(row)
             if on_episode is not None:
                 on_episode(row)
+        if keep is not None:
+            keep.restore()
     return CoMADDPGPolicy(learner.actor, settings.to_dict()), log
 
 
 def progress_line(row: dict[str, float], total: int) -> str:
     """One episode's progress line of ``mivecc train-comaddpg``."""
+    validation = ""
+    if not math.isnan(row.get("validation_reward", math.nan)):
+        validation = (f", validation {row['validation_collisions']:.0f} collisions, "
+                      f"{row['validation_reward']:.3f} reward/vehicle-step")
     return (f"episode {row['episode']:.0f}/{total}: reward/vehicle-step "
             f"{row['reward_per_transition']:.3f}, velocity {row['avg_travel_velocity_mps']:.2f} "
             f"m/s, collisions {row['collisions']:.0f}, noise {row['noise_sd']:.2f} m/s^2, "
-            f"critic loss {row['critic_loss']:.4f}, {row['wall_s']:.0f} s")
+            f"critic loss {row['critic_loss']:.4f}{validation}, {row['wall_s']:.0f} s")
+
+
+def validated_rows(log: Sequence[Mapping[str, float]]) -> list[Mapping[str, float]]:
+    """The rows of a ``keep_network="best"`` training log with a validation run."""
+    return [r for r in log if not math.isnan(float(r.get("validation_collisions", math.nan)))]
+
+
+def kept_row(log: Sequence[Mapping[str, float]]) -> Mapping[str, float] | None:
+    """The row of the actor a ``keep_network="best"`` training returned (the first of the
+    best by :func:`validation_key`); None for a log without validation."""
+    rows = validated_rows(log)
+    if not rows:
+        return None
+    return max(rows, key=lambda r: validation_key({c: float(r[c]) for c in VALIDATION_COLUMNS}))
+
+
+def kept_note(log: Sequence[Mapping[str, float]]) -> str | None:
+    """One line naming the actor a ``keep_network="best"`` training returned (None for
+    ``keep_network="last"``)."""
+    kept = kept_row(log)
+    if kept is None:
+        return None
+    last = validated_rows(log)[-1]
+    return (f"kept the actor of the best greedy validation run, after episode "
+            f"{kept['episode']:.0f}: {_validation_text(kept)}; the last validated actor "
+            f"{_validation_text(last)}")
+
+
+def _validation_text(row: Mapping[str, float]) -> str:
+    return (f"{row['validation_collisions']:.0f} collision events, "
+            f"{row['validation_reward']:.4f} reward per vehicle-step, "
+            f"{row['validation_velocity']:.3f} m/s")
 
 
 def plot_learning_curve(rows: Sequence[dict[str, float]], path: str | Path) -> Path:
     """A PNG of a training log: reward per transition, average travel velocity and collisions
-    per episode."""
+    per episode; with ``keep_network="best"`` also the greedy validation runs and a star at the
+    kept actor."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     episodes = [r["episode"] for r in rows]
-    fig, axes = plt.subplots(3, 1, figsize=(7, 7.5), sharex=True)
-    series = (("reward_per_transition", "reward per vehicle-step"),
-              ("avg_travel_velocity_mps", "average travel\nvelocity [m/s]"),
-              ("collisions", "collision events\n(all environments)"))
-    for ax, (key, label) in zip(axes, series, strict=True):
-        ax.plot(episodes, [r[key] for r in rows], marker="o", ms=3)
+    kept = kept_row(rows)
+    fig, axes = plt.subplots(3, 1, figsize=(9.5, 7.5), sharex=True)
+    series = (("reward_per_transition", "validation_reward", "reward per vehicle-step"),
+              ("avg_travel_velocity_mps", "validation_velocity",
+               "average travel\nvelocity [m/s]"),
+              ("collisions", "validation_collisions", "collision events\n(all environments)"))
+    for ax, (key, validation, label) in zip(axes, series, strict=True):
+        ax.plot(episodes, [r[key] for r in rows], marker="o", ms=3, label="training episode")
+        if kept is not None:
+            ax.plot(episodes, [r[validation] for r in rows], "D", ms=4,
+                    label="greedy validation run")
+            ax.plot([kept["episode"]], [kept[validation]], "*", ms=14, color="black",
+                    label="actor kept (keep_network=best)")
+            ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].set_title("CoMADDPG training (exploration included; densities mixed)")

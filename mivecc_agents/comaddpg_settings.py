@@ -65,6 +65,12 @@ class CoMADDPGSettings:
                                        "linearly")
     seed: int = _opt(0, "seed of the networks, the replay sampling, the exploration and the "
                      "training demand")
+    keep_network: str = _opt(
+        "best", "which actor the training returns: `best`, of the actors after each episode "
+        "once the exploration noise has decayed (and after the last episode), the one whose "
+        "greedy run on validation environments (one per entry of `densities`, seeds 1000 on) "
+        "had the fewest strict collision events, ties by the highest average travel velocity; "
+        "`last`, the one it ended with (before session 47 the only one)", ("best", "last"))
     config: dict[str, Any] = field(default_factory=dict, metadata={
         "help": "further MiVeCCConfig fields of the training environments"})
 

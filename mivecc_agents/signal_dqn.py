@@ -264,16 +264,19 @@ def hold_phases(env: Any, phases: np.ndarray, period: int) -> tuple[np.ndarray, 
 
 
 class KeptNetwork:
-    """``keep_network="best"``: :meth:`consider` scores the module's current state by
-    :func:`greedy_throughput` on the validation environments (one per entry of
-    ``settings.densities``) and remembers the best state; :meth:`restore` loads it (ties: the
-    earlier). Validation neither explores nor learns, so the training itself is the same as
-    with ``keep_network="last"``."""
+    """Keeps the best of a module's states: :meth:`consider` scores the current state with
+    ``score()`` and remembers it if ``key(score)`` beats every earlier one's (ties: the earlier);
+    :meth:`restore` loads the best. ``keep_network="best"`` of the signal trainers
+    (:meth:`for_settings`: vehicles out of a :func:`greedy_throughput` run on the validation
+    environments, one per entry of ``settings.densities``) and of CoMADDPG. Validation neither
+    explores nor learns, so the training itself is the same as with ``keep_network="last"``."""
 
-    def __init__(self, module: nn.Module, score: Callable[[], float]) -> None:
+    def __init__(self, module: nn.Module, score: Callable[[], Any],
+                 key: Callable[[Any], Any] = lambda score: score) -> None:
         self.module = module
         self.score = score
-        self.best_score = -math.inf
+        self.key = key
+        self.best_key: Any = None
         self.best_state: dict[str, torch.Tensor] | None = None
 
     @classmethod
@@ -285,11 +288,12 @@ class KeptNetwork:
         env = training_env(settings, cfg, batch=len(settings.densities))
         return cls(module, lambda: greedy_throughput(settings, env, greedy))
 
-    def consider(self) -> float:
+    def consider(self) -> Any:
         """Score the current state; keep it if it beats every earlier one. Returns the score."""
         score = self.score()
-        if score > self.best_score:
-            self.best_score = score
+        key = self.key(score)
+        if self.best_key is None or key > self.best_key:
+            self.best_key = key
             self.best_state = {k: v.detach().clone() for k, v in self.module.state_dict().items()}
         return score
 

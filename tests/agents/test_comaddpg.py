@@ -4,6 +4,7 @@ deterministic training, checkpoints, the ``comaddpg`` scheme and its command lin
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -13,14 +14,20 @@ from mivecc_agents import cli
 from mivecc_agents.checkpoints import CheckpointError
 from mivecc_agents.comaddpg import (
     SHIPPED_PATH,
+    VALIDATION_COLUMNS,
     CoMADDPGPolicy,
     CoMADDPGSettings,
     VehicleActor,
     VehicleLearner,
+    greedy_validation,
+    kept_note,
+    kept_row,
     neighbour_actions,
     neighbour_observations,
     train_comaddpg,
+    training_env,
     transitions,
+    validation_key,
 )
 from mivecc_agents.comaddpg_settings import vehicle_agent_fields
 from mivecc_agents.evaluation import evaluate_batch, evaluate_scheme
@@ -151,6 +158,8 @@ def test_settings_errors_name_the_field() -> None:
                         ({"noise_hold_steps": 0}, "noise_hold_steps: must be an integer"),
                         ({"critic_view": "all"},
                          "critic_view: must be one of actions, observations, got 'all'"),
+                        ({"keep_network": "first"},
+                         "keep_network: must be one of best, last, got 'first'"),
                         ({"densities": ()}, "densities: must be one or more numbers"),
                         ({"config": {"scheme": "E"}}, "config: scheme is set by the training"),
                         ({"config": {"model": "released"}}, "config: model is set by the"),
@@ -175,6 +184,66 @@ def test_training_with_the_observations_critic_is_deterministic() -> None:
     assert np.isfinite(log[0]["critic_loss"])
     retrain_is_identical(train_comaddpg, settings, first, "actor")
     assert first.settings["critic_view"] == "observations"
+
+
+def test_validation_ranks_fewer_collisions_first_then_the_velocity() -> None:
+    def run(collisions: float, velocity: float) -> dict[str, float]:
+        return {"validation_collisions": collisions, "validation_reward": -0.1,
+                "validation_velocity": velocity}
+
+    ranked = sorted([run(2, 12.9), run(0, 12.7), run(0, 12.8), run(1, math.nan), run(1, 12.5)],
+                    key=validation_key, reverse=True)
+    # a run in which no vehicle finished (NaN velocity) ranks last among runs with as many
+    # collisions
+    assert [r["validation_collisions"] for r in ranked] == [0, 0, 1, 1, 2]
+    assert [r["validation_velocity"] for r in ranked[:3]] == [12.8, 12.7, 12.5]
+    assert math.isnan(ranked[3]["validation_velocity"]) and ranked[4]["validation_velocity"] == 12.9
+
+
+def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() -> None:
+    # no noise decay: every episode is validated, and the first k episodes of a longer run are
+    # the whole of a k-episode run
+    base = {**TINY.to_dict(), "episodes": 3, "noise_start": 0.5, "noise_end": 0.5,
+            "densities": (900.0, 2100.0)}
+    validated = []
+    best, log = train_comaddpg(CoMADDPGSettings(**base),  # keep_network="best", the default
+                               on_validated=lambda row, policy: validated.append((row, policy)))
+    last, last_log = train_comaddpg(CoMADDPGSettings(**{**base, "keep_network": "last"}))
+    assert [row["episode"] for row, _ in validated] == [1, 2, 3]
+    for a, b in zip(validated[-1][1].actor.parameters(), last.actor.parameters(), strict=True):
+        assert torch.equal(a, b)  # the last validated actor is the one keep_network=last returns
+    assert not set(VALIDATION_COLUMNS) & set(last_log[0])
+    skip = ("wall_s", *VALIDATION_COLUMNS)
+    for row, same in zip(log, last_log, strict=True):
+        assert {k: v for k, v in row.items() if k not in skip} \
+            == {k: v for k, v in same.items() if k != "wall_s"}
+    assert all(np.isfinite(r[c]) for r in log for c in VALIDATION_COLUMNS)
+    kept = kept_row(log)
+    assert validation_key(kept) == max(validation_key(r) for r in log)
+    assert best.settings["keep_network"] == "best"
+    prefix, _ = train_comaddpg(CoMADDPGSettings(**{**base, "episodes": int(kept["episode"]),
+                                                   "keep_network": "last"}))
+    for a, b in zip(best.actor.parameters(), prefix.actor.parameters(), strict=True):
+        assert torch.equal(a, b)
+    settings = CoMADDPGSettings(**base)
+    again = greedy_validation(settings, training_env(settings, settings.env_config(), batch=2),
+                              best.actor)
+    assert again == {c: kept[c] for c in VALIDATION_COLUMNS}  # the kept actor's run, repeated
+    assert kept_note(log).startswith(f"kept the actor of the best greedy validation run, after "
+                                     f"episode {kept['episode']:.0f}: "
+                                     f"{kept['validation_collisions']:.0f} collision events")
+    assert kept_note(last_log) is None
+
+
+def test_validation_counts_once_the_noise_has_decayed_and_at_the_end() -> None:
+    # 150 steps per episode, decay over 0.5 x 600: step 300, episode 3's first, has noise_end
+    _, log = train_comaddpg(CoMADDPGSettings(**{**TINY.to_dict(), "episodes": 4,
+                                                "noise_decay_fraction": 0.5}))
+    assert [np.isfinite(r["validation_reward"]) for r in log] == [False, False, True, True]
+    assert log[2]["noise_sd"] == pytest.approx(TINY.noise_end) != log[1]["noise_sd"]
+    _, log = train_comaddpg(CoMADDPGSettings(**{**TINY.to_dict(), "episodes": 2,
+                                                "noise_decay_fraction": 1.0}))
+    assert [np.isfinite(r["validation_reward"]) for r in log] == [False, True]  # the last
 
 
 def test_checkpoints_round_trip_and_refuse_foreign_files(tiny_run, tmp_path) -> None:
@@ -220,12 +289,18 @@ def test_command_line(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert cli.main(["train-comaddpg", "--out", str(out), "--episodes", "1", "--batch", "1",
                      "--episode-steps", "120", "--warmup", "32", "--minibatch", "16",
-                     "--densities", "900"]) == 0
+                     "--densities", "900", "--save-validated"]) == 0
     captured = capsys.readouterr()
     assert captured.out.strip() == str(out / "comaddpg.pt")
     assert "episode 1/1: reward/vehicle-step" in captured.err
+    assert "mivecc: kept the actor of the best greedy validation run, after episode 1" \
+        in captured.err
     assert (out / "train_log.csv").read_text().startswith("episode,noise_sd,")
     assert (out / "learning_curve.png").stat().st_size > 10_000
+    validated = CoMADDPGPolicy.load(out / "validated" / "episode_01.pt")  # the only validation
+    for a, b in zip(validated.actor.parameters(), CoMADDPGPolicy.load(out / "comaddpg.pt")
+                    .actor.parameters(), strict=True):
+        assert torch.equal(a, b)
     assert cli.main(["evaluate", "--scheme", "comaddpg", "--vehicle-checkpoint",
                      str(out / "comaddpg.pt"), "--steps", "100", "--json",
                      "--no-progress"]) == 0
@@ -242,6 +317,8 @@ def test_command_line(tmp_path, capsys) -> None:
         (["train-comaddpg", "--out", str(out), "--gamma", "2"], "gamma: must be a number"),
         (["train-comaddpg", "--out", str(out), "--critic-view", "all"],
          "argument --critic-view: invalid choice: 'all'"),
+        (["train-comaddpg", "--out", str(out), "--keep-network", "last", "--save-validated"],
+         "--save-validated: needs --keep-network best"),
     ):
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
@@ -251,9 +328,11 @@ def test_command_line(tmp_path, capsys) -> None:
 
 def test_shipped_policy_is_the_documented_run() -> None:
     shipped = CoMADDPGPolicy.load(SHIPPED_PATH)
-    # `mivecc train-comaddpg --out DIR`; trained before critic_view existed (its critic read
-    # the references' actions: the default)
-    assert {"critic_view": "actions", **shipped.settings} == CoMADDPGSettings().to_dict()
+    # `mivecc train-comaddpg --out DIR --keep-network last`; trained before critic_view
+    # existed (its critic read the references' actions: the default) and before keep_network
+    # (read as the last actor)
+    assert {"critic_view": "actions", **shipped.settings} == CoMADDPGSettings(
+        keep_network="last").to_dict()
     assert shipped.k == CoMADDPGSettings().k
     assert isinstance(shipped.actor, VehicleActor)
 
