@@ -365,8 +365,8 @@ def greedy_validation(settings: CoMADDPGSettings, env: Any,
     :data:`VALIDATION_SEED`, every agent executing the actor's acceleration (no exploration,
     no learning): ``validation_collisions`` (strict collision events, all of ``env``'s
     environments), ``validation_reward`` (mean reward per vehicle-step, the training reward)
-    and ``validation_velocity`` (average travel velocity [m/s], mean over the
-    environments)."""
+    and ``validation_velocity`` (average travel velocity [m/s], mean over the environments
+    from which a vehicle exited; NaN if none did)."""
     cfg, b = env.config, env.batch_size
     env.reset(seed=VALIDATION_SEED)
     agents = observe_vehicles(env.sim, settings.k)
@@ -381,9 +381,12 @@ def greedy_validation(settings: CoMADDPGSettings, env: Any,
                                  settings.safety_weight)
         reward_sum, transitions_n = reward_sum + float(reward.sum()), transitions_n + reward.size
         agents = nxt
+    summary = env.summary()
+    exited = summary["throughput"] > 0
     return {"validation_collisions": collisions,
             "validation_reward": reward_sum / transitions_n if transitions_n else math.nan,
-            "validation_velocity": float(np.nanmean(env.summary()["avg_travel_velocity_mps"]))}
+            "validation_velocity": float(summary["avg_travel_velocity_mps"][exited].mean())
+            if exited.any() else math.nan}
 
 
 def validation_key(measures: Mapping[str, float]) -> tuple[float, float]:

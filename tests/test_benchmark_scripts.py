@@ -34,6 +34,7 @@ import shield_stress
 import stacking_audit
 import table_diff
 import trace_collisions
+import validated_actors
 
 from mivecc_agents.policies import pretrained_policies
 from mivecc_env import mivecc_v0
@@ -660,3 +661,54 @@ def test_learned_policies_puts_policies_beside_the_committed_runs(tmp_path: Path
                          (["--scheme", "coder"], "--grids: scheme coder runs on none")):
         with pytest.raises(ConfigError, match=message):
             learned_policies.main([*bad, *args])
+
+
+def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from mivecc_agents import cli
+    from mivecc_agents.comaddpg import CoMADDPGPolicy, validation_key
+
+    train = tmp_path / "tiny"
+    assert cli.main(["train-comaddpg", "--out", str(train), "--episodes", "3", "--batch", "2",
+                     "--episode-steps", "150", "--warmup", "64", "--minibatch", "32",
+                     "--densities", "900", "2100", "--noise-decay-fraction", "0.5",
+                     "--save-validated"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out"
+    text = validated_actors.main(["--trainings", str(train), "--grids", "1x1", "--densities",
+                                  "2100", "--seeds", "0", "1", "--steps", "400", "--out",
+                                  str(out)])
+    with open(out / "validated_actors.csv", newline="", encoding="utf-8") as fh:
+        runs = list(csv.DictReader(fh))
+    with open(train / "train_log.csv", newline="", encoding="utf-8") as fh:
+        log = [r for r in csv.DictReader(fh) if r["validation_collisions"] != "nan"]
+    assert [int(float(r["episode"])) for r in log] == [2, 3]  # validated once decayed
+    assert [(r["episode"], r["seed"]) for r in runs] == [("2", "0"), ("2", "1"), ("3", "0"),
+                                                       ("3", "1")]
+    # each actor's runs are the evaluation of its file
+    from mivecc_agents.evaluation import evaluate_scheme
+
+    actor = CoMADDPGPolicy.load(train / "validated" / "episode_03.pt")
+    again = evaluate_scheme("comaddpg", 1, 1, 2100, 400, 1, policies={"vehicle": actor},
+                            progress=False)
+    assert float(runs[3]["avg_travel_velocity_mps"]) == again["avg_travel_velocity_mps"]
+    assert float(runs[3]["collisions"]) == again["collisions"]
+    # the keep_network=best column names the actor the training kept
+    kept = max(log, key=lambda r: validation_key({k: float(v) for k, v in r.items()}))
+    line = next(x for x in text.splitlines() if x.startswith("| tiny | "))  # the rules' table
+    cells = line.strip("| ").split(" | ")[1:]  # last, best, best by reward
+    assert cells[0].startswith("3 / ") and cells[1].startswith(f"{float(kept['episode']):.0f} / ")
+    assert (out / "validated_actors.png").stat().st_size > 10_000
+    assert "Written by `python benchmarks/validated_actors.py --trainings" in (
+        out / "validated_actors.md").read_text()
+    with pytest.raises(cli_args_error(), match=r"has no train_log\.csv"):
+        validated_actors.main(["--trainings", str(tmp_path), "--out", str(out)])
+    (train / "validated" / "episode_02.pt").unlink()
+    with pytest.raises(cli_args_error(), match=r"episode_02\.pt is missing"):
+        validated_actors.main(["--trainings", str(train), "--out", str(out)])
+
+
+def cli_args_error() -> type:
+    from mivecc_env import cli_args
+
+    return cli_args.InputError

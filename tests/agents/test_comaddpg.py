@@ -203,8 +203,9 @@ def test_validation_ranks_fewer_collisions_first_then_the_velocity() -> None:
 def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() -> None:
     # no noise decay: every episode is validated, and the first k episodes of a longer run are
     # the whole of a k-episode run
+    # (on the single intersection, long enough for vehicles to exit: a validation velocity)
     base = {**TINY.to_dict(), "episodes": 3, "noise_start": 0.5, "noise_end": 0.5,
-            "densities": (900.0, 2100.0)}
+            "densities": (900.0, 2100.0), "rows": 1, "cols": 1, "episode_steps": 300}
     validated = []
     best, log = train_comaddpg(CoMADDPGSettings(**base),  # keep_network="best", the default
                                on_validated=lambda row, policy: validated.append((row, policy)))
