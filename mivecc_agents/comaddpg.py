@@ -187,7 +187,15 @@ class CoMADDPGPolicy:
                 raise ValueError(f"k {k}, hidden {hidden}, a_max {a_max}")
             actor = VehicleActor(k, hidden, a_max)
             actor.load_state_dict(data["network"])
-        return cls(actor, saved_settings(data), checkpoint=str(path))
+        return cls(actor, saved_vehicle_settings(data), checkpoint=str(path))
+
+
+def saved_vehicle_settings(checkpoint: dict[str, Any]) -> dict[str, Any]:
+    """A CoMADDPG checkpoint's training settings; one written before ``keep_network``
+    existed kept the last actor, one written before ``validation_steps`` existed (session 47)
+    validated for ``episode_steps``."""
+    settings = saved_settings(checkpoint)
+    return {"validation_steps": settings["episode_steps"], **settings}
 
 
 def greedy_accelerations(actor: VehicleActor, obs: np.ndarray) -> np.ndarray:
@@ -361,7 +369,7 @@ def training_env(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
 
 def greedy_validation(settings: CoMADDPGSettings, env: Any,
                       actor: VehicleActor) -> dict[str, float]:
-    """A run of ``settings.episode_steps`` steps from an empty network on the seeds from
+    """A run of ``settings.validation_steps`` steps from an empty network on the seeds from
     :data:`VALIDATION_SEED`, every agent executing the actor's acceleration (no exploration,
     no learning): ``validation_collisions`` (strict collision events, all of ``env``'s
     environments), ``validation_reward`` (mean reward per vehicle-step, the training reward)
@@ -371,7 +379,7 @@ def greedy_validation(settings: CoMADDPGSettings, env: Any,
     env.reset(seed=VALIDATION_SEED)
     agents = observe_vehicles(env.sim, settings.k)
     collisions, reward_sum, transitions_n = 0, 0.0, 0
-    for _ in range(settings.episode_steps):
+    for _ in range(settings.validation_steps):
         action = greedy_accelerations(actor, agents.obs)
         env.step_vehicles(vehicle_commands(agents, action, b))
         events = env.sim.last_events
@@ -405,6 +413,7 @@ def keeper(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
     validation environment per entry of ``settings.densities``."""
     if settings.keep_network != "best":
         return None
+    cfg = cfg.replace(max_steps=settings.validation_steps)
     env = training_env(settings, cfg, batch=len(settings.densities))
     return KeptNetwork(actor, lambda: greedy_validation(settings, env, actor), validation_key)
 

@@ -38,7 +38,7 @@ from mivecc_env.vehicle_agents import observe_vehicles, vehicle_commands
 from tests.agents.tiny import retrain_is_identical
 
 TINY = CoMADDPGSettings(episodes=2, batch=2, episode_steps=150, warmup=64, minibatch=32,
-                        densities=(1500.0,))
+                        densities=(1500.0,), validation_steps=150)
 
 
 @pytest.fixture(scope="module")
@@ -205,7 +205,8 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() ->
     # the whole of a k-episode run
     # (on the single intersection, long enough for vehicles to exit: a validation velocity)
     base = {**TINY.to_dict(), "episodes": 3, "noise_start": 0.5, "noise_end": 0.5,
-            "densities": (900.0, 2100.0), "rows": 1, "cols": 1, "episode_steps": 300}
+            "densities": (900.0, 2100.0), "rows": 1, "cols": 1, "episode_steps": 300,
+            "validation_steps": 400}
     validated = []
     best, log = train_comaddpg(CoMADDPGSettings(**base),  # keep_network="best", the default
                                on_validated=lambda row, policy: validated.append((row, policy)))
@@ -227,8 +228,8 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() ->
     for a, b in zip(best.actor.parameters(), prefix.actor.parameters(), strict=True):
         assert torch.equal(a, b)
     settings = CoMADDPGSettings(**base)
-    again = greedy_validation(settings, training_env(settings, settings.env_config(), batch=2),
-                              best.actor)
+    cfg = settings.env_config().replace(max_steps=settings.validation_steps)
+    again = greedy_validation(settings, training_env(settings, cfg, batch=2), best.actor)
     assert again == {c: kept[c] for c in VALIDATION_COLUMNS}  # the kept actor's run, repeated
     assert kept_note(log).startswith(f"kept the actor of the best greedy validation run, after "
                                      f"episode {kept['episode']:.0f}: "
@@ -290,7 +291,7 @@ def test_command_line(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert cli.main(["train-comaddpg", "--out", str(out), "--episodes", "1", "--batch", "1",
                      "--episode-steps", "120", "--warmup", "32", "--minibatch", "16",
-                     "--densities", "900", "--save-validated"]) == 0
+                     "--densities", "900", "--save-validated", "--validation-steps", "200"]) == 0
     captured = capsys.readouterr()
     assert captured.out.strip() == str(out / "comaddpg.pt")
     assert "episode 1/1: reward/vehicle-step" in captured.err
@@ -331,9 +332,9 @@ def test_shipped_policy_is_the_documented_run() -> None:
     shipped = CoMADDPGPolicy.load(SHIPPED_PATH)
     # `mivecc train-comaddpg --out DIR --keep-network last`; trained before critic_view
     # existed (its critic read the references' actions: the default) and before keep_network
-    # (read as the last actor)
+    # and validation_steps (read as the last actor, validated for an episode's steps)
     assert {"critic_view": "actions", **shipped.settings} == CoMADDPGSettings(
-        keep_network="last").to_dict()
+        keep_network="last", validation_steps=1000).to_dict()
     assert shipped.k == CoMADDPGSettings().k
     assert isinstance(shipped.actor, VehicleActor)
 
@@ -363,7 +364,8 @@ def test_training_commands_keep_stdout_for_the_checkpoint_path(tmp_path) -> None
         [sys.executable, "-c", "import sys; from mivecc_agents import cli; "
          "sys.exit(cli.main(sys.argv[1:]))", "train-comaddpg", "--out", str(out),
          "--episodes", "1", "--batch", "1", "--episode-steps", "150", "--warmup", "16",
-         "--minibatch", "8", "--densities", "1500"], capture_output=True, text=True,
+         "--minibatch", "8", "--densities", "1500", "--validation-steps", "150"],
+        capture_output=True, text=True,
         timeout=300, check=True)
     assert done.stdout == f"{out / 'comaddpg.pt'}\n"
     assert "episode 1/1" in done.stderr and "Initialized LazyTensorStorage" in done.stderr
