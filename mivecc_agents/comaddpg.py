@@ -401,8 +401,8 @@ def validation_key(measures: Mapping[str, float]) -> tuple[float, float]:
     """The order of validation runs (:func:`greedy_validation`), the comparison's two
     measures: fewer strict collision events first, then a higher average travel velocity
     (NaN, no vehicle finished, ranks last). Not the reward per vehicle-step: its safety term
-    dominates it and ranks the slowest actors first, which collided no less in the
-    evaluation (docs/comparators.md, "Keeping the best-validated actor")."""
+    pays for distance and ranks slower actors first (docs/comparators.md, "Keeping the
+    best-validated actor")."""
     velocity = measures["validation_velocity"]
     return -measures["validation_collisions"], -math.inf if math.isnan(velocity) else velocity
 
