@@ -63,19 +63,21 @@ def rules() -> dict[str, Callable[[Sequence[Mapping[str, float]]], Mapping[str, 
 def validated(training: Path) -> list[dict[str, Any]]:
     """A training's validated log rows (episode and validation measures), each with the path
     of its actor; an error naming the folder if an actor file is missing."""
+    from mivecc_agents.cli_signal import validated_checkpoint
+    from mivecc_agents.comaddpg import validated_rows
+
     log = training / "train_log.csv"
     if not log.is_file():
         raise cli_args.InputError(f"--trainings: {training} has no train_log.csv")
     with open(log, newline="", encoding="utf-8") as fh:
-        rows = [r for r in csv.DictReader(fh)
-                if not math.isnan(float(r.get("validation_collisions") or math.nan))]
+        rows = validated_rows(list(csv.DictReader(fh)))
     if not rows:
         raise cli_args.InputError(f"--trainings: {training}'s log has no validation runs "
                                   "(trained with --keep-network last?)")
     out = []
     for r in rows:
         episode = int(float(r["episode"]))
-        path = training / "validated" / f"episode_{episode:02d}.pt"
+        path = validated_checkpoint(training, episode)
         if not path.is_file():
             raise cli_args.InputError(f"--trainings: {path} is missing (train with "
                                       "--save-validated)")

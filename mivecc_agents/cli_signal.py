@@ -96,6 +96,13 @@ class TrainCommand(NamedTuple):
 
 #: Folder in ``--out`` of ``--save-validated``'s networks.
 VALIDATED_DIR = "validated"
+
+
+def validated_checkpoint(out: Path, episode: int) -> Path:
+    """Where ``--save-validated`` writes the network validated after ``episode`` in ``--out``
+    ``out``."""
+    return Path(out) / VALIDATED_DIR / f"episode_{int(episode):02d}.pt"
+
 #: The training commands by name.
 TRAIN_COMMANDS = {
     "train-signal": TrainCommand("mivecc_agents.signal_dqn_settings:SignalDQNSettings",
@@ -215,7 +222,7 @@ def cmd_train_signal(args: argparse.Namespace) -> int:
                               "network is validated)")
 
         def save_validated(row: dict[str, float], validated: Any) -> None:
-            validated.save(out / VALIDATED_DIR / f"episode_{row['episode']:02.0f}.pt")
+            validated.save(validated_checkpoint(out, row["episode"]))
 
         extra["on_validated"] = save_validated
     policy, log = _attr(command.trainer)(settings, on_episode=progress, **extra)

@@ -667,6 +667,7 @@ def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from mivecc_agents import cli
     from mivecc_agents.comaddpg import CoMADDPGPolicy, validation_key
+    from mivecc_env import cli_args
 
     train = tmp_path / "tiny"
     assert cli.main(["train-comaddpg", "--out", str(train), "--episodes", "3", "--batch", "2",
@@ -701,14 +702,8 @@ def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
     assert (out / "validated_actors.png").stat().st_size > 10_000
     assert "Written by `python benchmarks/validated_actors.py --trainings" in (
         out / "validated_actors.md").read_text()
-    with pytest.raises(cli_args_error(), match=r"has no train_log\.csv"):
+    with pytest.raises(cli_args.InputError, match=r"has no train_log\.csv"):
         validated_actors.main(["--trainings", str(tmp_path), "--out", str(out)])
     (train / "validated" / "episode_02.pt").unlink()
-    with pytest.raises(cli_args_error(), match=r"episode_02\.pt is missing"):
+    with pytest.raises(cli_args.InputError, match=r"episode_02\.pt is missing"):
         validated_actors.main(["--trainings", str(train), "--out", str(out)])
-
-
-def cli_args_error() -> type:
-    from mivecc_env import cli_args
-
-    return cli_args.InputError
