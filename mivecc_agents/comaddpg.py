@@ -72,6 +72,7 @@ from mivecc_env.vehicle_agents import (
     VehicleAgents,
     follow,
     observe_vehicles,
+    vehicle_accelerations,
     vehicle_commands,
     vehicle_rewards,
 )
@@ -193,9 +194,11 @@ class CoMADDPGPolicy:
 def saved_vehicle_settings(checkpoint: dict[str, Any]) -> dict[str, Any]:
     """A CoMADDPG checkpoint's training settings; one written before ``keep_network``
     existed kept the last actor, one written before ``validation_steps`` existed (session 47)
-    validated for ``episode_steps``."""
+    validated for ``episode_steps``, one written before ``validation_envs`` existed (session
+    48) on one environment per density."""
     settings = saved_settings(checkpoint)
-    return {"validation_steps": settings["episode_steps"], **settings}
+    return {"validation_steps": settings["episode_steps"],
+            "validation_envs": len(settings["densities"]), **settings}
 
 
 def greedy_accelerations(actor: VehicleActor, obs: np.ndarray) -> np.ndarray:
@@ -367,34 +370,77 @@ def training_env(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
     return BatchedMiVeCCEnv(cfg, batch_size=batch, densities=densities, observe=())
 
 
-def greedy_validation(settings: CoMADDPGSettings, env: Any,
-                      actor: VehicleActor) -> dict[str, float]:
-    """A run of ``settings.validation_steps`` steps from an empty network on the seeds from
-    :data:`VALIDATION_SEED`, every agent executing the actor's acceleration (no exploration,
-    no learning): ``validation_collisions`` (strict collision events, all of ``env``'s
-    environments), ``validation_reward`` (mean reward per vehicle-step, the training reward)
-    and ``validation_velocity`` (average travel velocity [m/s], mean over the environments
-    from which a vehicle exited; NaN if none did)."""
+@dataclass(frozen=True)
+class ValidationRuns:
+    """Per-environment results ``(B,)`` of a greedy validation run (:func:`validation_runs`)."""
+
+    collisions: np.ndarray  #: strict collision events
+    reward_sum: np.ndarray  #: summed reward of the vehicle agents' transitions
+    transitions: np.ndarray  #: vehicle agents' transitions
+    velocity: np.ndarray  #: average travel velocity [m/s] (NaN where no vehicle exited)
+    throughput: np.ndarray  #: vehicles exited
+
+    def measures(self, envs: int | None = None) -> dict[str, float]:
+        """The validation measures of the first ``envs`` environments (default all):
+        ``validation_collisions`` (strict collision events, summed), ``validation_reward``
+        (mean reward per vehicle-step, the training reward) and ``validation_velocity``
+        (average travel velocity [m/s], mean over the environments from which a vehicle
+        exited; NaN if none did)."""
+        part = slice(0, envs)
+        transitions = int(self.transitions[part].sum())
+        exited = self.throughput[part] > 0
+        return {"validation_collisions": int(self.collisions[part].sum()),
+                "validation_reward": float(self.reward_sum[part].sum()) / transitions
+                if transitions else math.nan,
+                "validation_velocity": float(self.velocity[part][exited].mean())
+                if exited.any() else math.nan}
+
+
+def validation_runs(settings: CoMADDPGSettings, env: Any, actor: VehicleActor) -> ValidationRuns:
+    """Run ``env`` for ``settings.validation_steps`` steps from an empty network on the seeds
+    from :data:`VALIDATION_SEED`, every agent executing the actor's acceleration (no
+    exploration, no learning), the actor called once per environment as in an evaluation
+    (``vehicle_accelerations``), so that an environment's run does not depend on the others."""
     cfg, b = env.config, env.batch_size
+
+    def policy(obs: np.ndarray) -> np.ndarray:
+        return greedy_accelerations(actor, obs)
+
     env.reset(seed=VALIDATION_SEED)
     agents = observe_vehicles(env.sim, settings.k)
-    collisions, reward_sum, transitions_n = 0, 0.0, 0
+    collisions = np.zeros(b, dtype=np.int64)
+    reward_sum, transitions_n = np.zeros(b), np.zeros(b, dtype=np.int64)
     for _ in range(settings.validation_steps):
-        action = greedy_accelerations(actor, agents.obs)
+        action = vehicle_accelerations(policy, agents, b, cfg.a_max_mps2)
         env.step_vehicles(vehicle_commands(agents, action, b))
         events = env.sim.last_events
-        collisions += int(events.collision_events.sum())
+        collisions += events.collision_events
         nxt = observe_vehicles(env.sim, settings.k)
         reward = vehicle_rewards(agents, action, nxt, events, cfg, settings.collision_penalty,
                                  settings.safety_weight)
-        reward_sum, transitions_n = reward_sum + float(reward.sum()), transitions_n + reward.size
+        reward_sum += np.bincount(agents.env, weights=reward, minlength=b)
+        transitions_n += np.bincount(agents.env, minlength=b)
         agents = nxt
     summary = env.summary()
-    exited = summary["throughput"] > 0
-    return {"validation_collisions": collisions,
-            "validation_reward": reward_sum / transitions_n if transitions_n else math.nan,
-            "validation_velocity": float(summary["avg_travel_velocity_mps"][exited].mean())
-            if exited.any() else math.nan}
+    return ValidationRuns(collisions, reward_sum, transitions_n,
+                          np.asarray(summary["avg_travel_velocity_mps"], dtype=np.float64),
+                          np.asarray(summary["throughput"], dtype=np.float64))
+
+
+def validation_env(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
+                   envs: int | None = None) -> Any:
+    """The validation environments of ``settings`` (``envs``, default
+    ``settings.validation_envs``, with the training densities cycled over them) on the
+    training environments' config ``cfg``, for runs of ``settings.validation_steps``."""
+    envs = settings.validation_envs if envs is None else envs
+    return training_env(settings, cfg.replace(max_steps=settings.validation_steps), batch=envs)
+
+
+def greedy_validation(settings: CoMADDPGSettings, env: Any,
+                      actor: VehicleActor) -> dict[str, float]:
+    """The validation measures (:meth:`ValidationRuns.measures`) of a greedy run of all of
+    ``env``'s environments (:func:`validation_runs`)."""
+    return validation_runs(settings, env, actor).measures()
 
 
 def validation_key(measures: Mapping[str, float]) -> tuple[float, float]:
@@ -409,12 +455,11 @@ def validation_key(measures: Mapping[str, float]) -> tuple[float, float]:
 
 def keeper(settings: CoMADDPGSettings, cfg: MiVeCCConfig,
            actor: VehicleActor) -> KeptNetwork | None:
-    """The keeper of ``actor`` for ``settings`` (None with ``keep_network="last"``): one
-    validation environment per entry of ``settings.densities``."""
+    """The keeper of ``actor`` for ``settings`` (None with ``keep_network="last"``): on
+    :func:`validation_env`."""
     if settings.keep_network != "best":
         return None
-    cfg = cfg.replace(max_steps=settings.validation_steps)
-    env = training_env(settings, cfg, batch=len(settings.densities))
+    env = validation_env(settings, cfg)
     return KeptNetwork(actor, lambda: greedy_validation(settings, env, actor), validation_key)
 
 

@@ -19,7 +19,11 @@ from mivecc_agents.signal_dqn_settings import (
 from mivecc_env.config import ConfigError, MiVeCCConfig, from_overrides
 from mivecc_env.vehicle_agents import VEHICLE_AGENT_FIELDS
 
-__all__ = ["CoMADDPGSettings"]
+__all__ = ["VALIDATION_ENVS", "CoMADDPGSettings"]
+
+#: Default validation environments of ``keep_network="best"``: three per training density
+#: (docs/comparators.md, "How many validation environments").
+VALIDATION_ENVS = 21
 
 
 @dataclass(frozen=True)
@@ -68,12 +72,14 @@ class CoMADDPGSettings:
     keep_network: str = _opt(
         "best", "which actor the training returns: `best`, of the actors after each episode "
         "once the exploration noise has decayed (and after the last episode), the one whose "
-        "greedy run of `validation_steps` on validation environments (one per entry of "
-        "`densities`, seeds 1000 on) "
+        "greedy run of `validation_steps` on `validation_envs` validation environments "
         "had the fewest strict collision events, ties by the highest average travel velocity; "
         "`last`, the one it ended with (before session 47 the only one)", ("best", "last"))
     validation_steps: int = _opt(3000, "steps of 0.1 s of each validation run (keep_network "
                                  "best; the comparison's runs have 3000)")
+    validation_envs: int = _opt(VALIDATION_ENVS, "environments of each validation run "
+                                "(keep_network best): `densities` cycled over them, seeds 1000 "
+                                "on")
     config: dict[str, Any] = field(default_factory=dict, metadata={
         "help": "further MiVeCCConfig fields of the training environments"})
 
@@ -83,7 +89,8 @@ class CoMADDPGSettings:
                 "rows": (1, 20), "cols": (1, 20), "k": (2, 64), "hidden": (1, 4096),
                 "critic_hidden": (2, 4096), "buffer": (1, 10**8), "minibatch": (1, 65_536),
                 "warmup": (1, 10**8), "updates_per_step": (0, 1000), "seed": (0, 2**31),
-                "noise_hold_steps": (1, 10**6), "validation_steps": (1, 10**7)}
+                "noise_hold_steps": (1, 10**6), "validation_steps": (1, 10**7),
+                "validation_envs": (1, 4096)}
         floats = {"collision_penalty": (0.0, 1e6, False), "safety_weight": (0.0, 1e6, False),
                   "gamma": (0.0, 1.0, False), "lr_actor": (0.0, 1.0, True),
                   "lr_critic": (0.0, 1.0, True), "tau": (0.0, 1.0, True),

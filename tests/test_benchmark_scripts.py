@@ -673,7 +673,8 @@ def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
     assert cli.main(["train-comaddpg", "--out", str(train), "--episodes", "3", "--batch", "2",
                      "--episode-steps", "150", "--warmup", "64", "--minibatch", "32",
                      "--densities", "900", "2100", "--noise-decay-fraction", "0.5",
-                     "--save-validated", "--validation-steps", "300"]) == 0
+                     "--save-validated", "--validation-steps", "300",
+                     "--validation-envs", "2"]) == 0
     capsys.readouterr()
     out = tmp_path / "out"
     text = validated_actors.main(["--trainings", str(train), "--grids", "1x1", "--densities",

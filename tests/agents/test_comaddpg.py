@@ -27,7 +27,9 @@ from mivecc_agents.comaddpg import (
     train_comaddpg,
     training_env,
     transitions,
+    validation_env,
     validation_key,
+    validation_runs,
 )
 from mivecc_agents.comaddpg_settings import vehicle_agent_fields
 from mivecc_agents.evaluation import evaluate_batch, evaluate_scheme
@@ -38,7 +40,7 @@ from mivecc_env.vehicle_agents import observe_vehicles, vehicle_commands
 from tests.agents.tiny import retrain_is_identical
 
 TINY = CoMADDPGSettings(episodes=2, batch=2, episode_steps=150, warmup=64, minibatch=32,
-                        densities=(1500.0,), validation_steps=150)
+                        densities=(1500.0,), validation_steps=150, validation_envs=1)
 
 
 @pytest.fixture(scope="module")
@@ -206,7 +208,7 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() ->
     # (on the single intersection, long enough for vehicles to exit: a validation velocity)
     base = {**TINY.to_dict(), "episodes": 3, "noise_start": 0.5, "noise_end": 0.5,
             "densities": (900.0, 2100.0), "rows": 1, "cols": 1, "episode_steps": 300,
-            "validation_steps": 400}
+            "validation_steps": 400, "validation_envs": 2}
     validated = []
     best, log = train_comaddpg(CoMADDPGSettings(**base),  # keep_network="best", the default
                                on_validated=lambda row, policy: validated.append((row, policy)))
@@ -228,13 +230,37 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() ->
     for a, b in zip(best.actor.parameters(), prefix.actor.parameters(), strict=True):
         assert torch.equal(a, b)
     settings = CoMADDPGSettings(**base)
-    cfg = settings.env_config().replace(max_steps=settings.validation_steps)
-    again = greedy_validation(settings, training_env(settings, cfg, batch=2), best.actor)
+    again = greedy_validation(settings, validation_env(settings, settings.env_config()),
+                              best.actor)
     assert again == {c: kept[c] for c in VALIDATION_COLUMNS}  # the kept actor's run, repeated
     assert kept_note(log).startswith(f"kept the actor of the best greedy validation run, after "
                                      f"episode {kept['episode']:.0f}: "
                                      f"{kept['validation_collisions']:.0f} collision events")
     assert kept_note(last_log) is None
+
+
+def test_validation_runs_each_environment_as_alone(tiny_run) -> None:
+    """An environment's validation run does not depend on how many run beside it (the actor is
+    called once per environment, as in an evaluation), so the first N of a larger validation
+    are the validation on N environments; the measures sum and average over environments."""
+    settings = CoMADDPGSettings(**{**TINY.to_dict(), "densities": (900.0, 2100.0),
+                                   "rows": 1, "cols": 1, "validation_steps": 300})
+    actor = tiny_run[0].actor
+    two = validation_runs(settings, validation_env(settings, settings.env_config(), 2), actor)
+    five = validation_runs(settings, validation_env(settings, settings.env_config(), 5), actor)
+    for field in ("collisions", "reward_sum", "transitions", "velocity", "throughput"):
+        np.testing.assert_array_equal(getattr(five, field)[:2], getattr(two, field))
+    assert five.measures(2) == two.measures()
+    assert (five.transitions > 0).all() and (five.throughput > 0).all()
+    assert two.measures()["validation_velocity"] == pytest.approx(two.velocity.mean())
+    assert two.measures()["validation_reward"] == pytest.approx(
+        two.reward_sum.sum() / two.transitions.sum())
+    # the environments cycle the densities: the third runs the first density on the next seed
+    env = validation_env(settings, settings.env_config(), 3)
+    assert list(env.densities) == [900.0, 2100.0, 900.0]
+    for bad in (0, 4097):
+        with pytest.raises(ConfigError, match="validation_envs"):
+            CoMADDPGSettings(validation_envs=bad).check()
 
 
 def test_validation_counts_once_the_noise_has_decayed_and_at_the_end() -> None:
@@ -291,7 +317,8 @@ def test_command_line(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert cli.main(["train-comaddpg", "--out", str(out), "--episodes", "1", "--batch", "1",
                      "--episode-steps", "120", "--warmup", "32", "--minibatch", "16",
-                     "--densities", "900", "--save-validated", "--validation-steps", "200"]) == 0
+                     "--densities", "900", "--save-validated", "--validation-steps", "200",
+                     "--validation-envs", "1"]) == 0
     captured = capsys.readouterr()
     assert captured.out.strip() == str(out / "comaddpg.pt")
     assert "episode 1/1: reward/vehicle-step" in captured.err
@@ -319,6 +346,8 @@ def test_command_line(tmp_path, capsys) -> None:
         (["train-comaddpg", "--out", str(out), "--gamma", "2"], "gamma: must be a number"),
         (["train-comaddpg", "--out", str(out), "--critic-view", "all"],
          "argument --critic-view: invalid choice: 'all'"),
+        (["train-comaddpg", "--out", str(out), "--validation-envs", "0"],
+         "validation_envs: must be"),
         (["train-comaddpg", "--out", str(out), "--keep-network", "last", "--save-validated"],
          "--save-validated: needs --keep-network best"),
     ):
@@ -332,9 +361,10 @@ def test_shipped_policy_is_the_documented_run() -> None:
     shipped = CoMADDPGPolicy.load(SHIPPED_PATH)
     # `mivecc train-comaddpg --out DIR --keep-network last`; trained before critic_view
     # existed (its critic read the references' actions: the default) and before keep_network
-    # and validation_steps (read as the last actor, validated for an episode's steps)
+    # validation_steps and validation_envs (read as the last actor, validated for an episode's
+    # steps on one environment per density)
     assert {"critic_view": "actions", **shipped.settings} == CoMADDPGSettings(
-        keep_network="last", validation_steps=1000).to_dict()
+        keep_network="last", validation_steps=1000, validation_envs=7).to_dict()
     assert shipped.k == CoMADDPGSettings().k
     assert isinstance(shipped.actor, VehicleActor)
 
