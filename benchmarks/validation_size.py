@@ -43,7 +43,7 @@ from mivecc_env.processes import map_jobs
 KEYS = ("training", "episode", "env", "density", "seed", "collisions", "avg_travel_velocity_mps",
         "throughput", "reward_sum", "transitions")
 #: Default numbers of validation environments compared (multiples of the 7 training densities).
-ENVS = (7, 14, 21, 28, 42, 70)
+ENVS = (7, 14, 21, 28, 42)
 
 
 def _revalidate(job: tuple[dict[str, Any], int, int | None]) -> list[dict[str, Any]]:

@@ -35,6 +35,7 @@ import stacking_audit
 import table_diff
 import trace_collisions
 import validated_actors
+import validation_size
 
 from mivecc_agents.policies import pretrained_policies
 from mivecc_env import mivecc_v0
@@ -674,7 +675,7 @@ def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
                      "--episode-steps", "150", "--warmup", "64", "--minibatch", "32",
                      "--densities", "900", "2100", "--noise-decay-fraction", "0.5",
                      "--save-validated", "--validation-steps", "300",
-                     "--validation-envs", "2"]) == 0
+                     "--validation-envs", "2", "--rows", "1", "--cols", "1"]) == 0
     capsys.readouterr()
     out = tmp_path / "out"
     text = validated_actors.main(["--trainings", str(train), "--grids", "1x1", "--densities",
@@ -705,6 +706,28 @@ def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
         out / "validated_actors.md").read_text()
     with pytest.raises(cli_args.InputError, match=r"has no train_log\.csv"):
         validated_actors.main(["--trainings", str(tmp_path), "--out", str(out)])
+    # validation_size: the first 2 of 5 environments are the training's own validation
+    size_out = tmp_path / "size"
+    size_text = validation_size.main(["--trainings", str(train), "--evaluation",
+                                      str(out / "validated_actors.csv"), "--envs", "1", "2", "5",
+                                      "--out", str(size_out)])
+    with open(size_out / "validation_size.csv", newline="", encoding="utf-8") as fh:
+        envs = list(csv.DictReader(fh))
+    assert [(r["episode"], r["env"], r["density"]) for r in envs[:5]] == [
+        ("2", str(i), d) for i, d in enumerate(["900.0", "2100.0"] * 2 + ["900.0"])]
+    assert len(envs) == 10
+    for row in log:
+        own = [r for r in envs if r["episode"] == row["episode"].split(".")[0]]
+        again = validation_size.measures(own, 2)
+        assert again == {c: float(row[c]) for c in again}  # the training's validation run
+        assert math.isfinite(again["validation_velocity"])
+    size_rows = [x for x in size_text.splitlines() if x.startswith("| ")][1:]
+    assert [x.split(" | ")[0] for x in size_rows] == ["| last", "| 1", "| 2", "| 5"]
+    assert size_rows[2].split(" | ")[1].startswith(f"{float(kept['episode']):.0f} / ")
+    assert (size_out / "validation_size.png").stat().st_size > 10_000
+    with pytest.raises(cli_args.InputError, match=r"--evaluation: .* is not a file"):
+        validation_size.main(["--trainings", str(train), "--evaluation", str(tmp_path / "x"),
+                              "--out", str(size_out)])
     (train / "validated" / "episode_02.pt").unlink()
     with pytest.raises(cli_args.InputError, match=r"episode_02\.pt is missing"):
         validated_actors.main(["--trainings", str(train), "--out", str(out)])

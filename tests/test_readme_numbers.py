@@ -2052,9 +2052,9 @@ def _rules_row(table: str, name: str) -> list[list[str]]:
 
 
 def test_keeping_the_best_validated_comaddpg_actor_trains_the_same() -> None:
-    """docs/comparators.md, "Keeping the best-validated actor": session 47's trainings (3000-
-    and 1000-step validation) against the shipped policy's and the seed tables' (the same
-    training, another actor kept); their clocks and the validation's cost."""
+    """docs/comparators.md, "Keeping the best-validated actor": session 48's trainings against
+    the shipped policy's and the seed tables' (the same training, another actor kept); their
+    clocks and the validation's cost."""
     import math
 
     from mivecc_agents.comaddpg import validation_key
@@ -2063,48 +2063,45 @@ def test_keeping_the_best_validated_comaddpg_actor_trains_the_same() -> None:
     results = ROOT / "docs" / "results" / "comaddpg"
     last_dirs = {"actions_seed0": results / "train_3x3",
                  **{n: results / "training_seeds" / n for n in COMADDPG_TRAININGS[1:]}}
-    for folder in (results / "keep_best", results / "keep_best" / "validation_1000_steps"):
-        table, _ = _validated_actors(folder)
-        clocks, costs = [], []
-        for name in COMADDPG_TRAININGS:
-            best, last = _comaddpg_log(folder / name), _comaddpg_log(last_dirs[name])
-            assert [{k: v for k, v in r.items() if k not in ("wall_s", *COMADDPG_VALIDATION)}
-                    for r in best] == [{k: v for k, v in r.items() if k != "wall_s"}
-                                       for r in last], name
-            rows = [r for r in best if r["validation_collisions"] != "nan"]
-            assert [int(r["episode"]) for r in rows] == list(range(19, 31))
-            kept = max(rows, key=lambda r: validation_key(
-                {c: float(r[c]) for c in COMADDPG_VALIDATION}))
-            assert _rules_row(table, name)[1][0] == kept["episode"]
-            note = (folder / name / "output.txt").read_text(encoding="utf-8")
-            assert f"after episode {kept['episode']}: " in note
-            clocks.append(float(best[-1]["wall_s"]))
-            wall = np.diff([0.0] + [float(r["wall_s"]) for r in best])
-            validated = np.array([r["validation_collisions"] != "nan" for r in best])
-            costs.append((wall[validated].mean() - wall[5:18].mean(),
-                          12 * (wall[validated].mean() - wall[5:18].mean()) / clocks[-1]))
-        if folder.name == "keep_best":
-            def clock(seconds: float) -> str:
-                seconds = round(seconds)
-                return f"{seconds // 60} min {seconds % 60} s"
+    folder = results / "keep_best"
+    table, _ = _validated_actors(folder)
+    clocks, costs = [], []
+    for name in COMADDPG_TRAININGS:
+        best, last = _comaddpg_log(folder / name), _comaddpg_log(last_dirs[name])
+        assert [{k: v for k, v in r.items() if k not in ("wall_s", *COMADDPG_VALIDATION)}
+                for r in best] == [{k: v for k, v in r.items() if k != "wall_s"}
+                                   for r in last], name
+        rows = [r for r in best if r["validation_collisions"] != "nan"]
+        assert [int(r["episode"]) for r in rows] == list(range(19, 31))
+        kept = max(rows, key=lambda r: validation_key(
+            {c: float(r[c]) for c in COMADDPG_VALIDATION}))
+        assert _rules_row(table, name)[1][0] == kept["episode"]
+        note = (folder / name / "output.txt").read_text(encoding="utf-8")
+        assert f"after episode {kept['episode']}: " in note
+        clocks.append(float(best[-1]["wall_s"]))
+        wall = np.diff([0.0] + [float(r["wall_s"]) for r in best])
+        validated = np.array([r["validation_collisions"] != "nan" for r in best])
+        costs.append((wall[validated].mean() - wall[5:18].mean(),
+                      12 * (wall[validated].mean() - wall[5:18].mean()) / clocks[-1]))
 
-            assert f"({clock(min(clocks))} to {clock(max(clocks))} of training each" in docs
-            low, high = min(c for c, _ in costs), max(c for c, _ in costs)
-            share = math.ceil(100 * max(x for _, x in costs))  # "at most": rounded up
-            assert (f"a validation run costs {low:.1f}-{high:.1f} s, at most {share} % of "
-                    "the training") in docs
+    def clock(seconds: float) -> str:
+        seconds = round(seconds)
+        return f"{seconds // 60} min {seconds % 60} s"
+
+    assert f"({clock(min(clocks))} to {clock(max(clocks))} of training each" in docs
+    low, high = min(c for c, _ in costs), max(c for c, _ in costs)
+    share = math.ceil(100 * max(x for _, x in costs))  # "at most": rounded up
+    assert (f"a validation run costs {low:.1f}-{high:.1f} s, at most {share} % of "
+            "the training") in docs
 
 
 def test_keeping_the_best_validated_comaddpg_actor_study() -> None:
     """docs/comparators.md, "Which validated actor to keep": the rules' table, the
-    correlations, the 1000-step validation tried first."""
+    correlations, the reward rule."""
     docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
     folder = ROOT / "docs" / "results" / "comaddpg" / "keep_best"
     table, actors = _validated_actors(folder)
-    short_table, short_actors = _validated_actors(folder / "validation_1000_steps")
     assert " ".join(table.split()) in docs
-    # the same actors evaluated: the evaluation columns agree, the validation ones differ
-    assert [a["collisions"] for a in actors] == [a["collisions"] for a in short_actors]
 
     def r(x: list[float], y: list[float]) -> float:
         return float(np.corrcoef(x, y)[0, 1])
@@ -2112,33 +2109,79 @@ def test_keeping_the_best_validated_comaddpg_actor_study() -> None:
     vel = r([a["validation_velocity"] for a in actors], [np.mean(a["velocity"]) for a in actors])
     col = r([a["validation_collisions"] for a in actors], [a["collisions"] for a in actors])
     rew = r([a["validation_reward"] for a in actors], [a["validation_velocity"] for a in actors])
-    assert f"(Pearson r = {vel:.2f} over the 72 actors) and its collisions in the large " \
+    assert f"(Pearson r = {vel:.2f} over the 72 actors) and its collisions too " \
            f"(r = {col:.2f})" in docs
     assert f"reward and velocity correlate with r = {rew:.2f}" in docs
-
-    def zero(group: list[dict]) -> str:
-        z = [a["collisions"] for a in group if a["validation_collisions"] == 0]
-        return f"the {len(z)} actors with no collision in {{}} have {min(z):.0f} to " \
-               f"{max(z):.0f} strict events"
-
-    assert zero(actors).format("it") in docs
-    assert zero(short_actors).format("its runs") in docs
+    zero = [a["collisions"] for a in actors if a["validation_collisions"] == 0]
+    assert f"the {len(zero)} actors with no collision in it have {min(zero):.0f} to " \
+           f"{max(zero):.0f} strict events in the evaluation" in docs
     totals = table.splitlines()[-1].strip("| ").split(" | ")[1:]
-    short_totals = short_table.splitlines()[-1].strip("| ").split(" | ")[1:]
-    assert short_totals[0] == totals[0]  # the last actors
-    assert (f"The actors it keeps have {short_totals[1]} strict events in the table's runs, "
-            f"against {totals[1]} with 3000 steps and {totals[0]} for the last actors") in docs
-    differs = []
-    for name in COMADDPG_TRAININGS:
-        long, short = _rules_row(table, name)[1], _rules_row(short_table, name)[1]
-        if long[0] != short[0]:
-            differs.append(f"{short[1]} against {long[1]}")
-    assert len(differs) == 2 and f"which collide more ({'; '.join(differs)})" in docs
+    assert f"keeps {totals[2]} strict events against the velocity rule's {totals[1]}" in docs
     gaps = [float(_rules_row(table, n)[1][2]) - float(_rules_row(table, n)[2][2])
             for n in COMADDPG_TRAININGS
             if _rules_row(table, n)[1][0] != _rules_row(table, n)[2][0]]
-    assert f"{min(gaps):.3f}-{max(gaps):.3f} m/s slower than the velocity rule's in the " \
-           f"{len(gaps)} trainings where the two rules differ" in docs
+    assert len(gaps) == 1 and f"{gaps[0]:.3f} m/s slower than the velocity rule's in the " \
+           "one training where the two rules differ" in docs
+
+
+def _validation_size(folder: Path) -> tuple[str, dict[str, list[str]]]:
+    """``validation_size.md``'s table and its rows' cells by their first cell (N or last)."""
+    md = (folder / "validation_size.md").read_text(encoding="utf-8")
+    table = md[md.index("| N |"):].strip()
+    rows = {line.strip("| ").split(" | ")[0]: line.strip("| ").split(" | ")[1:]
+            for line in table.splitlines()[2:]}
+    return table, rows
+
+
+def test_how_many_comaddpg_validation_environments() -> None:
+    """docs/comparators.md, "How many validation environments": the table is the committed
+    study's, whose first 21 environments are every training's logged validation run, and
+    every figure of its bullets."""
+    import csv
+
+    import validation_size
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    keep_best = ROOT / "docs" / "results" / "comaddpg" / "keep_best"
+    table, rows = _validation_size(keep_best / "validation_size")
+    assert " ".join(table.split()) in docs
+    with open(keep_best / "validation_size" / "validation_size.csv", newline="",
+              encoding="utf-8") as fh:
+        envs: dict = {}
+        for r in csv.DictReader(fh):
+            envs.setdefault((r["training"], r["episode"]), []).append(r)
+    for name in COMADDPG_TRAININGS:
+        for row in _comaddpg_log(keep_best / name):
+            if row["validation_collisions"] == "nan":
+                continue
+            again = validation_size.measures(envs[name, row["episode"].split(".")[0]], 21)
+            assert again == {c: float(row[c]) for c in again}, (name, row["episode"])
+
+    def total(cells: list[str]) -> tuple[str, str]:
+        return tuple(cells[len(COMADDPG_TRAININGS)].split(" / "))  # type: ignore[return-value]
+
+    def clean(cells: list[str]) -> str:
+        return cells[len(COMADDPG_TRAININGS) + 1].split(" / ")[1]
+
+    assert rows["14"][:6] == rows["21"][:6] == rows["28"][:6] != rows["7"][:6]
+    assert (f"With 7 (session 47's number) the kept actors have {total(rows['7'])[0]} strict "
+            f"events in the evaluation; with 14, 21 or 28 the same actors are kept in every "
+            f"training, with {total(rows['21'])[0]} events (the last actors: "
+            f"{total(rows['last'])[0]})") in docs
+    assert (f"have {clean(rows['7'])} events in the evaluation with 7 environments, "
+            f"{clean(rows['14'])} with 14, {clean(rows['21'])} with 21") in docs
+    changed = [i for i in range(6) if rows["42"][i] != rows["28"][i]]
+    assert [COMADDPG_TRAININGS[i] for i in changed] == ["actions_seed1"]
+    was, now = rows["28"][changed[0]].split(" / "), rows["42"][changed[0]].split(" / ")
+    assert (f"(episode {now[0]}: no event in the evaluation against {was[1]}, but "
+            f"{float(was[2]) - float(now[2]):.3f} m/s slower), {total(rows['42'])[0]} events "
+            f"with a mean velocity of {total(rows['42'])[1]} m/s against "
+            f"{total(rows['21'])[1]}") in docs and now[1] == "0"
+    _, short = _validation_size(keep_best / "validation_size_1000_steps")
+    assert (f"keeps actors with {total(short['7'])[0]} events with 7 environments, "
+            f"{total(short['14'])[0]} with 14 and {total(short['21'])[0]} with 21 (as many "
+            f"steps as 7 environments of 3000, which keep {total(rows['7'])[0]})") in docs
+    assert int(total(short["21"])[0]) < int(total(rows["7"])[0])
 
 
 def test_keeping_the_best_validated_comaddpg_actor_beside_the_last() -> None:
@@ -2182,19 +2225,20 @@ def test_keeping_the_best_validated_comaddpg_actor_beside_the_last() -> None:
     above = {(n, g): [d for d in DENSITIES if velocity(f"best_{n}", g, d) > eec[g, d]]
              for n in names for g in (1, 3)}
     assert all(len(above[n, g]) == 7 for n in names[:2] for g in (1, 3))
-    assert len(above["actions_seed2", 3]) == 7
-    below = [d for d in DENSITIES if d not in above["actions_seed2", 1]]
-    assert below == [1200, 1500]
-    assert "on 1x1 but at 1200 and 1500 veh/lane/h" in docs
-    assert "but for seed 2 at 1200 and 1500 veh/lane/h, on 1x1" in readme
     assert not [d for d in DENSITIES if velocity("last_actions_seed1", 1, d) > eec[1, d]]
-    moved = ("actions_seed1", "actions_seed2", "observations_seed2")
-    faster = {g: sum(velocity(f"best_{n}", g, d) > velocity(f"last_{n}", g, d)
-                     for n in moved for d in DENSITIES) for g in (1, 3)}
-    assert faster == {1: 20, 3: 20} and "faster in 20 of 21 cells per grid" in docs
-    slower = [sum(velocity("best_observations_seed1", g, d)
-                  < velocity("last_observations_seed1", g, d) for d in DENSITIES) for g in (1, 3)]
-    assert slower == [5, 5] and "slower in 5 of 7 with the fuller critic's seed 1" in docs
+    assert above["actions_seed2", 3] == [300, 600, 900] and above["actions_seed2", 1] == [300]
+    assert "seed 2's (episode 20) only at 300-900 veh/lane/h on 3x3 and at 300 on 1x1" in docs
+    assert "seed 2's safer actor only at 300-900 veh/lane/h on 3x3 and 300 on 1x1" in readme
+    assert all(len(above[n, 3]) == 7 for n in names[3:])
+    assert [len(above[n, 1]) for n in names[3:]] == [4, 7, 7]
+    assert [d for d in DENSITIES if d not in above["observations_seed0", 1]] == [1200, 1500, 1800]
+    assert "on 1x1 but for seed 0 at 1200-1800 veh/lane/h (its last actor)" in docs
+    faster = {n: [sum(velocity(f"best_{n}", g, d) > velocity(f"last_{n}", g, d)
+                      for d in DENSITIES) for g in (1, 3)]
+              for n in ("actions_seed1", "actions_seed2", "observations_seed1",
+                        "observations_seed2")}
+    assert faster == {"actions_seed1": [7, 7], "actions_seed2": [0, 0],
+                      "observations_seed1": [0, 0], "observations_seed2": [7, 7]}
     for g, text in ((1, "{} m/s on 1x1"), (3, "{} on 3x3")):
         for prefix in ("best", "last"):
             v = sorted(velocity(f"{prefix}_{n}", g, 2100) for n in names[:3])
@@ -2203,6 +2247,7 @@ def test_keeping_the_best_validated_comaddpg_actor_beside_the_last() -> None:
         assert text.format(f"{best[0]:.3f}-{best[-1]:.3f}") in docs
     pairs = {g: [f"{events(f'last_{n}', g)} -> {events(f'best_{n}', g)}" for n in names]
              for g in (1, 3)}
+    assert all(events(f"best_{n}", g) <= events(f"last_{n}", g) for n in names for g in (1, 3))
     assert (f"seed 0 {pairs[3][0]}, seed 1 {pairs[3][1]}, seed 2 {pairs[3][2]}; on 1x1 "
             f"{', '.join(pairs[1][:3])}. With the fuller critic: {', '.join(pairs[3][3:])} on "
             f"3x3 and {', '.join(pairs[1][3:])} on 1x1") in docs

@@ -25,7 +25,6 @@ from mivecc_agents.comaddpg import (
     neighbour_actions,
     neighbour_observations,
     train_comaddpg,
-    training_env,
     transitions,
     validation_env,
     validation_key,
