@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from comparison import write_runs_and_tables
 from validated_actors import evaluation, pearson, validated
 
 from mivecc_env import cli_args
@@ -237,8 +238,6 @@ def main(argv: Sequence[str] | None = None) -> str:
     rows = [r for batch in map_jobs(_revalidate, jobs, args.workers, "actor")
             for r in batch]
     text = summary(actors, rows, evaluated, sizes)
-    from comparison import write_runs_and_tables
-
     write_runs_and_tables(args.out, "validation_size", KEYS, rows, "validation_size.py", argv,
                           text)
     figure(actors, rows, evaluated, sizes, args.out / "validation_size.png")
