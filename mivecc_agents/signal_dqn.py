@@ -243,12 +243,15 @@ def greedy_throughput(settings: SignalDQNSettings, env: Any,
                       greedy: Callable[[np.ndarray], np.ndarray]) -> float:
     """Vehicles out per environment (mean over ``env``'s environments) of a run of
     ``settings.episode_steps`` steps from an empty network on the seeds from
-    :data:`VALIDATION_SEED`, ``greedy(obs)`` choosing the phases ``(B, n_int)`` every
-    ``settings.decision_period_s`` (no exploration, no learning)."""
+    :data:`VALIDATION_SEED`, ``greedy(obs)`` choosing the phases ``(b, n_int)`` every
+    ``settings.decision_period_s`` (no exploration, no learning). ``greedy`` is called once per
+    environment (``b = 1``), as in an evaluation (:class:`HeldPhases`), so that an
+    environment's run does not depend on the others."""
     period = decision_steps(settings.decision_period_s, env.config.dt_s)
     obs = env.reset(seed=VALIDATION_SEED).signal_obs
     for _ in range(settings.episode_steps // period):
-        obs, _ = hold_phases(env, greedy(obs), period)
+        phases = np.concatenate([greedy(obs[b:b + 1]) for b in range(obs.shape[0])])
+        obs, _ = hold_phases(env, phases, period)
     return float(env.summary()["throughput"].mean())
 
 

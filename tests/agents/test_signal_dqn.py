@@ -223,6 +223,15 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_network() 
     again = greedy_throughput(SignalDQNSettings(**base), env,
                               lambda obs: best(obs.reshape(-1, 15)).reshape(obs.shape[:2]))
     assert again == value  # the kept network's validation run, repeated
+    # the network is asked one environment at a time, as in an evaluation (HeldPhases)
+    shapes: list[tuple[int, ...]] = []
+
+    def spy(obs: np.ndarray) -> np.ndarray:
+        shapes.append(obs.shape)
+        return best(obs.reshape(-1, 15)).reshape(obs.shape[:2])
+
+    assert greedy_throughput(SignalDQNSettings(**base), env, spy) == value
+    assert shapes and set(shapes) == {(1, 1, 15)} and len(shapes) % 2 == 0
     assert kept_note(log).startswith(f"kept the network of the best greedy validation run "
                                      f"after episode {episode}: {value:.1f} vehicles out")
     assert kept_note(last_log) is None
