@@ -111,7 +111,7 @@ TRAIN_COMMANDS = {
                      "Train PA-DQN signal agents (DQN, one shared Q-network, a decision every "
                      "decision_period_s) on the single intersection, or on a grid with "
                      "--rows/--cols; docs/comparators.md.", "mivecc_agents.signal_dqn",
-                     ("mivecc_agents.signal_dqn:kept_note",)),
+                     ("mivecc_agents.signal_dqn:kept_note",), validated=True),
     "train-coder": TrainCommand("mivecc_agents.coder_settings:CoderSettings",
                     "mivecc_agents.coder:train_coder", "coder.pt",
                     "train the Coder signal policy (learned multi-intersection comparator)",

@@ -32,6 +32,7 @@ larger grids), ``mivecc train-signal`` trains one.
 
 from __future__ import annotations
 
+import copy
 import csv
 import math
 import time
@@ -189,6 +190,8 @@ def _high(cfg: MiVeCCConfig) -> torch.Tensor:
 
 def train_signal_dqn(settings: SignalDQNSettings,
                      on_episode: Callable[[dict[str, float]], None] | None = None,
+                     on_validated: Callable[[dict[str, float], SignalDQNPolicy], None]
+                     | None = None,
                      ) -> tuple[SignalDQNPolicy, list[dict[str, float]]]:
     """Train a PA-DQN policy (module docstring); returns it and one log row per episode.
 
@@ -197,7 +200,9 @@ def train_signal_dqn(settings: SignalDQNSettings,
     after each episode (progress). Log row keys: ``episode``, ``epsilon`` (at the episode's
     end), ``reward_per_decision`` (mean over agents and decisions), ``throughput``,
     ``backlog`` and ``avg_travel_velocity_mps`` (means over the episode's environments),
-    ``loss`` (mean TD loss of the episode's updates; NaN before the first), ``wall_s``.
+    ``loss`` (mean TD loss of the episode's updates; NaN before the first), ``wall_s``; with
+    ``keep_network="best"`` also ``validation_throughput`` (:func:`run_episodes`), and
+    ``on_validated(row, policy)`` gets each validated network (a copy) with its log row.
     """
     settings.check()
     cfg = settings.env_config()
@@ -221,8 +226,17 @@ def train_signal_dqn(settings: SignalDQNSettings,
         def greedy(obs: np.ndarray) -> np.ndarray:
             return learner.greedy(obs.reshape(-1, obs.shape[-1])).reshape(obs.shape[:2])
 
+        def episode_done(row: dict[str, float]) -> None:
+            if on_validated is not None and not math.isnan(
+                    row.get("validation_throughput", math.nan)):
+                on_validated(row, SignalDQNPolicy(copy.deepcopy(learner.qnet),
+                                                  settings.decision_period_s,
+                                                  settings.to_dict()))
+            if on_episode is not None:
+                on_episode(row)
+
         keep = KeptNetwork.for_settings(settings, cfg, learner.qnet, greedy)
-        log = run_episodes(settings, env, act, learn, on_episode, keep=keep)
+        log = run_episodes(settings, env, act, learn, episode_done, keep=keep)
     policy = SignalDQNPolicy(learner.qnet, settings.decision_period_s, settings.to_dict())
     return policy, log
 

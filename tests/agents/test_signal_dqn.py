@@ -150,8 +150,14 @@ def test_shipped_policy_batch_equals_single_runs_and_repeats() -> None:
 def test_command_line(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert cli.main(["train-signal", "--out", str(out), "--episodes", "1", "--batch", "1",
-                     "--episode-steps", "200", "--warmup", "1", "--densities", "900"]) == 0
+                     "--episode-steps", "200", "--warmup", "1", "--densities", "900",
+                     "--save-validated"]) == 0
     assert capsys.readouterr().out.strip() == str(out / "signal_dqn.pt")
+    # the only validated network (after the last episode) is the one kept
+    validated = SignalDQNPolicy.load(out / "validated" / "episode_01.pt")
+    kept = SignalDQNPolicy.load(out / "signal_dqn.pt")
+    for a, b in zip(validated.net.parameters(), kept.net.parameters(), strict=True):
+        assert torch.equal(a, b)
     assert (out / "train_log.csv").read_text().startswith("episode,epsilon,")
     assert (out / "learning_curve.png").stat().st_size > 10_000
     assert cli.main(["evaluate", "--scheme", "pa-dqn", "--signal-checkpoint",
@@ -161,6 +167,8 @@ def test_command_line(tmp_path, capsys) -> None:
     assert result["scheme"] == "pa-dqn" and result["signal_checkpoint"].endswith("signal_dqn.pt")
     for argv, message in (
         (["train-signal", "--out", str(out), "--tau", "0"], "tau: must be a number in (0.0"),
+        (["train-signal", "--out", str(out), "--keep-network", "last", "--save-validated"],
+         "--save-validated: needs --keep-network best"),
         (["evaluate", "--scheme", "pa-dqn", "--no-pretrained"], "give --signal-checkpoint"),
         (["evaluate", "--scheme", "pa-dqn", "--signal-checkpoint", str(tmp_path / "none.pt")],
          "--signal-checkpoint: "),
@@ -203,8 +211,13 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_network() 
     # run are the whole of a k-episode run
     base = {**TINY.to_dict(), "episodes": 3, "eps_start": 0.3, "eps_end": 0.3,
             "densities": (900.0, 1800.0)}
-    best, log = train_signal_dqn(SignalDQNSettings(**base))  # keep_network="best", the default
-    _, last_log = train_signal_dqn(SignalDQNSettings(**{**base, "keep_network": "last"}))
+    copies: list = []
+    best, log = train_signal_dqn(SignalDQNSettings(**base),  # keep_network="best", the default
+                                 on_validated=lambda row, policy: copies.append((row, policy)))
+    last, last_log = train_signal_dqn(SignalDQNSettings(**{**base, "keep_network": "last"}))
+    assert [row["episode"] for row, _ in copies] == [1, 2, 3]
+    for a, b in zip(copies[-1][1].net.parameters(), last.net.parameters(), strict=True):
+        assert torch.equal(a, b)  # the last validated network is the one keep_network=last keeps
     assert "validation_throughput" not in last_log[0]
     for row, same in zip(log, last_log, strict=True):
         assert {k: v for k, v in row.items() if k not in ("wall_s", "validation_throughput")} \
@@ -216,8 +229,9 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_network() 
     assert episode == 1 + validated.index(max(validated))
     prefix, _ = train_signal_dqn(SignalDQNSettings(**{**base, "episodes": episode,
                                                       "keep_network": "last"}))
-    for a, b in zip(best.net.parameters(), prefix.net.parameters(), strict=True):
-        assert torch.equal(a, b)
+    for a, b, c in zip(best.net.parameters(), prefix.net.parameters(),
+                       copies[episode - 1][1].net.parameters(), strict=True):
+        assert torch.equal(a, b) and torch.equal(a, c)
     cfg = SignalDQNSettings(**base).env_config()
     env = training_env(SignalDQNSettings(**base), cfg, batch=2)
     again = greedy_throughput(SignalDQNSettings(**base), env,
