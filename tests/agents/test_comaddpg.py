@@ -36,7 +36,7 @@ from mivecc_agents.signal_dqn import shipped_policy_path as shipped_pa_dqn_path
 from mivecc_env.batched import BatchedMiVeCCEnv
 from mivecc_env.config import ConfigError
 from mivecc_env.vehicle_agents import observe_vehicles, vehicle_commands
-from tests.agents.tiny import retrain_is_identical
+from tests.agents.tiny import keep_best_and_last, retrain_is_identical
 
 TINY = CoMADDPGSettings(episodes=2, batch=2, episode_steps=150, warmup=64, minibatch=32,
                         densities=(1500.0,), validation_steps=150, validation_envs=1)
@@ -208,13 +208,8 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_actor() ->
     base = {**TINY.to_dict(), "episodes": 3, "noise_start": 0.5, "noise_end": 0.5,
             "densities": (900.0, 2100.0), "rows": 1, "cols": 1, "episode_steps": 300,
             "validation_steps": 400, "validation_envs": 2}
-    validated = []
-    best, log = train_comaddpg(CoMADDPGSettings(**base),  # keep_network="best", the default
-                               on_validated=lambda row, policy: validated.append((row, policy)))
-    last, last_log = train_comaddpg(CoMADDPGSettings(**{**base, "keep_network": "last"}))
-    assert [row["episode"] for row, _ in validated] == [1, 2, 3]
-    for a, b in zip(validated[-1][1].actor.parameters(), last.actor.parameters(), strict=True):
-        assert torch.equal(a, b)  # the last validated actor is the one keep_network=last returns
+    best, log, _, last_log, _ = keep_best_and_last(train_comaddpg, CoMADDPGSettings, base,
+                                                   "actor")
     assert not set(VALIDATION_COLUMNS) & set(last_log[0])
     skip = ("wall_s", *VALIDATION_COLUMNS)
     for row, same in zip(log, last_log, strict=True):

@@ -26,7 +26,7 @@ from mivecc_agents.signal_dqn import (
 )
 from mivecc_agents.signal_dqn_settings import SignalDQNSettings
 from mivecc_env.config import ConfigError
-from tests.agents.tiny import retrain_is_identical
+from tests.agents.tiny import keep_best_and_last, retrain_is_identical
 
 TINY = SignalDQNSettings(episodes=2, batch=2, episode_steps=300, warmup=8, densities=(900.0,))
 
@@ -211,13 +211,8 @@ def test_keep_best_trains_as_keep_last_and_returns_the_best_validated_network() 
     # run are the whole of a k-episode run
     base = {**TINY.to_dict(), "episodes": 3, "eps_start": 0.3, "eps_end": 0.3,
             "densities": (900.0, 1800.0)}
-    copies: list = []
-    best, log = train_signal_dqn(SignalDQNSettings(**base),  # keep_network="best", the default
-                                 on_validated=lambda row, policy: copies.append((row, policy)))
-    last, last_log = train_signal_dqn(SignalDQNSettings(**{**base, "keep_network": "last"}))
-    assert [row["episode"] for row, _ in copies] == [1, 2, 3]
-    for a, b in zip(copies[-1][1].net.parameters(), last.net.parameters(), strict=True):
-        assert torch.equal(a, b)  # the last validated network is the one keep_network=last keeps
+    best, log, _, last_log, copies = keep_best_and_last(train_signal_dqn, SignalDQNSettings,
+                                                        base, "net")
     assert "validation_throughput" not in last_log[0]
     for row, same in zip(log, last_log, strict=True):
         assert {k: v for k, v in row.items() if k not in ("wall_s", "validation_throughput")} \

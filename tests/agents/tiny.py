@@ -39,3 +39,22 @@ def retrain_is_identical(train: Any, settings: Any, first: Any, network: str) ->
                     getattr(again, network).state_dict().values(), strict=True):
         assert torch.equal(a, b)
     return log
+
+
+def keep_best_and_last(train: Any, settings_cls: Any, base: dict[str, Any],
+                       network: str) -> tuple[Any, list, Any, list, list]:
+    """Train ``base`` (every episode validated) keeping the best network, with every validated
+    network copied through ``on_validated``, and again keeping the last: the copies come one per
+    episode, and the last one's ``network`` module is the one ``keep_network="last"`` returns.
+    Returns ``(best, log, last, last_log, copies)``, ``copies`` as ``(row, policy)`` pairs."""
+    import torch
+
+    copies: list = []
+    best, log = train(settings_cls(**base),  # keep_network="best", the default
+                      on_validated=lambda row, policy: copies.append((row, policy)))
+    last, last_log = train(settings_cls(**{**base, "keep_network": "last"}))
+    assert [row["episode"] for row, _ in copies] == list(range(1, base["episodes"] + 1))
+    for a, b in zip(getattr(copies[-1][1], network).parameters(),
+                    getattr(last, network).parameters(), strict=True):
+        assert torch.equal(a, b)
+    return best, log, last, last_log, copies
