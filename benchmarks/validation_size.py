@@ -109,9 +109,12 @@ def read_evaluation(path: Path) -> dict[tuple[str, int], list[dict[str, Any]]]:
     return out
 
 
+#: Per number of validation environments: each training's kept actor, and every actor.
+Kept = dict[int, tuple[dict[str, dict[str, Any]], list[dict[str, Any]]]]
+
+
 def kept_by_size(actors: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str, Any]],
-                 sizes: Sequence[int]
-                 ) -> dict[int, tuple[dict[str, dict[str, Any]], list[dict[str, Any]]]]:
+                 sizes: Sequence[int]) -> Kept:
     """For each number of environments: each training's actor the default rule keeps (the
     first of the best, as the trainer does) and every actor, each with its ``measures`` under
     ``"validation"``."""
@@ -124,22 +127,18 @@ def kept_by_size(actors: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str
     for n in sizes:
         scored = [{**a, "validation": measures(own[a["training"], a["episode"]], n)}
                   for a in actors]
-        picks: dict[str, dict[str, Any]] = {}
-        for a in scored:
-            best = picks.get(a["training"])
-            if best is None or (validation_key(a["validation"])
-                                > validation_key(best["validation"])):
-                picks[a["training"]] = a
+        picks = {t: max((a for a in scored if a["training"] == t),  # max: the first of the best
+                        key=lambda a: validation_key(a["validation"]))
+                 for t in dict.fromkeys(a["training"] for a in scored)}
         out[n] = (picks, scored)
     return out
 
 
-def summary(actors: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str, Any]],
-            evaluated: Mapping[tuple[str, int], Sequence[Mapping[str, Any]]],
-            sizes: Sequence[int]) -> str:
-    """The markdown of ``validation_size.md`` (module docstring)."""
+def summary(actors: Sequence[Mapping[str, Any]], kept: Kept,
+            evaluated: Mapping[tuple[str, int], Sequence[Mapping[str, Any]]]) -> str:
+    """The markdown of ``validation_size.md`` (module docstring) from :func:`kept_by_size`."""
     trainings = list(dict.fromkeys(a["training"] for a in actors))
-    kept = kept_by_size(actors, rows, sizes)
+    sizes = list(kept)
 
     def ev(a: Mapping[str, Any]) -> tuple[float, float]:
         return evaluation(evaluated[a["training"], a["episode"]])
@@ -170,10 +169,11 @@ def summary(actors: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str, Any
     return "\n".join(lines) + "\n"
 
 
-def figure(actors: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str, Any]],
+def figure(actors: Sequence[Mapping[str, Any]], kept: Kept,
            evaluated: Mapping[tuple[str, int], Sequence[Mapping[str, Any]]],
-           sizes: Sequence[int], path: Path) -> Path:
-    """The kept actors' total evaluation collision events and mean velocity against N."""
+           path: Path) -> Path:
+    """The kept actors' total evaluation collision events and mean velocity against N
+    (:func:`kept_by_size`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -182,7 +182,7 @@ def figure(actors: Sequence[Mapping[str, Any]], rows: Sequence[Mapping[str, Any]
     from mivecc_agents.signal_dqn import save_figure
 
     trainings = list(dict.fromkeys(a["training"] for a in actors))
-    kept = kept_by_size(actors, rows, sizes)
+    sizes = list(kept)
     last = [[a for a in actors if a["training"] == t][-1] for t in trainings]
 
     def ev(group: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
@@ -237,10 +237,11 @@ def main(argv: Sequence[str] | None = None) -> str:
     jobs = [(a, sizes[-1], args.steps) for a in actors]
     rows = [r for batch in map_jobs(_revalidate, jobs, args.workers, "actor")
             for r in batch]
-    text = summary(actors, rows, evaluated, sizes)
+    kept = kept_by_size(actors, rows, sizes)
+    text = summary(actors, kept, evaluated)
     write_runs_and_tables(args.out, "validation_size", KEYS, rows, "validation_size.py", argv,
                           text)
-    figure(actors, rows, evaluated, sizes, args.out / "validation_size.png")
+    figure(actors, kept, evaluated, args.out / "validation_size.png")
     print(text)
     return text
 
