@@ -60,17 +60,19 @@ def rules() -> dict[str, Callable[[Sequence[Mapping[str, float]]], Mapping[str, 
             "best by reward": lambda rows: max(rows, key=by_reward)}
 
 
-def validated(training: Path) -> list[dict[str, Any]]:
-    """A training's validated log rows (episode and validation measures), each with the path
-    of its actor; an error naming the folder if an actor file is missing."""
+def validated(training: Path,
+              columns: Sequence[str] = VALIDATION) -> list[dict[str, Any]]:
+    """A ``--save-validated`` training's validated log rows (those where ``columns[0]`` is
+    not NaN: episode and the validation ``columns``), each with the path of its network; an
+    error naming the folder if its log or a network file is missing."""
     from mivecc_agents.cli_signal import validated_checkpoint
-    from mivecc_agents.comaddpg import validated_rows
 
     log = training / "train_log.csv"
     if not log.is_file():
         raise cli_args.InputError(f"--trainings: {training} has no train_log.csv")
     with open(log, newline="", encoding="utf-8") as fh:
-        rows = validated_rows(list(csv.DictReader(fh)))
+        rows = [r for r in csv.DictReader(fh)
+                if not math.isnan(float(r.get(columns[0]) or math.nan))]
     if not rows:
         raise cli_args.InputError(f"--trainings: {training}'s log has no validation runs "
                                   "(trained with --keep-network last?)")
@@ -82,7 +84,7 @@ def validated(training: Path) -> list[dict[str, Any]]:
             raise cli_args.InputError(f"--trainings: {path} is missing (train with "
                                       "--save-validated)")
         out.append({"training": training.name, "episode": episode, "path": str(path),
-                    **{k: float(r[k]) for k in VALIDATION}})
+                    **{k: float(r[k]) for k in columns}})
     return out
 
 

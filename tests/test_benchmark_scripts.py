@@ -35,6 +35,7 @@ import stacking_audit
 import table_diff
 import trace_collisions
 import validated_actors
+import validated_networks
 import validation_size
 
 from mivecc_agents.policies import pretrained_policies
@@ -731,3 +732,52 @@ def test_validated_actors_evaluates_every_validated_actor_and_each_rules_pick(
     (train / "validated" / "episode_02.pt").unlink()
     with pytest.raises(cli_args.InputError, match=r"episode_02\.pt is missing"):
         validated_actors.main(["--trainings", str(train), "--out", str(out)])
+
+
+def test_validated_networks_evaluates_every_validated_pa_dqn_network_and_the_picks(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from mivecc_agents import cli
+    from mivecc_agents.evaluation import evaluate_scheme
+    from mivecc_agents.signal_dqn import SignalDQNPolicy, kept_episodes
+    from mivecc_env import cli_args
+
+    train = tmp_path / "tiny"
+    assert cli.main(["train-signal", "--out", str(train), "--episodes", "3", "--batch", "2",
+                     "--episode-steps", "300", "--warmup", "1", "--densities", "900", "2100",
+                     "--eps-decay-fraction", "0.3", "--save-validated"]) == 0
+    capsys.readouterr()
+    out = tmp_path / "out"
+    text = validated_networks.main(["--trainings", str(train), "--grids", "1x1", "--densities",
+                                    "900", "2100", "--seeds", "0", "--steps", "300", "--out",
+                                    str(out)])
+    with open(out / "validated_networks.csv", newline="", encoding="utf-8") as fh:
+        runs = list(csv.DictReader(fh))
+    with open(train / "train_log.csv", newline="", encoding="utf-8") as fh:
+        log = list(csv.DictReader(fh))
+    validated = [r for r in log if r["validation_throughput"] != "nan"]
+    episodes = [int(float(r["episode"])) for r in validated]
+    assert len(episodes) >= 2 and episodes[-1] == 3
+    assert [(int(r["episode"]), r["density"]) for r in runs] == [
+        (e, d) for e in episodes for d in ("900", "2100")]
+    # each network's runs are the evaluation of its file, with the comparison's keep-clear rule
+    policy = SignalDQNPolicy.load(train / "validated" / "episode_03.pt")
+    again = evaluate_scheme("pa-dqn", 1, 1, 2100, 300, 0, policies={"signal": policy},
+                            progress=False)
+    assert float(runs[-1]["throughput"]) == again["throughput"]
+    assert float(runs[-1]["avg_travel_velocity_mps"]) == again["avg_travel_velocity_mps"]
+    # the keep_network=best column names the network the training kept, the last column the last
+    kept = kept_episodes([{k: float(v) for k, v in r.items()} for r in log])[0][1]
+    line = next(x for x in text.splitlines() if x.startswith("| tiny | "))
+    cells = line.strip("| ").split(" | ")[1:]  # last, best, hindsight: most out, fastest
+    assert cells[0].startswith("3 / ") and cells[1].startswith(f"{kept} / ")
+    out_by_episode = {e: np.mean([float(r["throughput"]) for r in runs
+                                  if int(r["episode"]) == e]) for e in episodes}
+    assert cells[2].startswith(f"{max(out_by_episode, key=out_by_episode.get)} / ")
+    assert (out / "validated_networks.png").stat().st_size > 10_000
+    assert "Written by `python benchmarks/validated_networks.py --trainings" in (
+        out / "validated_networks.md").read_text()
+    with pytest.raises(cli_args.InputError, match="has no validation runs"):
+        comaddpg_like = tmp_path / "other"
+        comaddpg_like.mkdir()
+        (comaddpg_like / "train_log.csv").write_text("episode,validation_collisions\n1,0\n")
+        validated_networks.main(["--trainings", str(comaddpg_like), "--out", str(out)])

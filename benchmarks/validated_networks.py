@@ -1,0 +1,192 @@
+"""Every validated network of PA-DQN trainings, evaluated: how well the greedy validation run
+(vehicles out) predicts the comparison, and what the network ``keep_network="best"`` keeps
+gives and gives up.
+
+Each ``--trainings DIR`` is the ``--out`` folder of ``mivecc train-signal --save-validated``
+(``train_log.csv`` with the ``validation_throughput`` column, ``validated/episode_NN.pt``).
+Every validated network runs the comparison's setting (``--grids``, default 3x3;
+``--densities``, default 300-2100 veh/lane/h; ``--seeds`` 0 1 2; ``--steps`` 3000; the
+keep-clear rule as in the comparison), one batch per network and grid. Two rules pick a
+network per training from its validation runs: ``last`` (``keep_network="last"``) and
+``best`` (``keep_network="best"``: the most vehicles out per validation environment, the
+first of the best); beside them, in hindsight, the network with the most vehicles out and the
+fastest one in the evaluation (no rule can know them: they show what the validation leaves).
+
+Writes to ``--out``: ``validated_networks.csv`` (every run, with its network's validation
+figure), ``validated_networks.md`` (per training and pick the network and its evaluation;
+the correlations over the networks of validation and evaluation vehicles out, of validation
+vehicles out and evaluation velocity, and of evaluation vehicles out and velocity; every
+network's validation and evaluation) and ``validated_networks.png`` (evaluation vehicles out
+against validation, evaluation velocity against evaluation vehicles out, one marker per
+network). One progress bar on stderr.
+
+Usage (docs/comparators.md, "Every validated PA-DQN network", has the committed runs):
+    python benchmarks/validated_networks.py --trainings runs/pa_dqn_seed0 \\
+        runs/pa_dqn_seed1 --workers 2 --out benchmarks/results/validated_networks
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from comparison import add_run_options, write_runs_and_tables
+from learned_policies import _run as run_policy
+from validated_actors import pearson, validated
+
+from mivecc_env import cli_args
+from mivecc_env.processes import map_jobs
+
+VALIDATION = ("validation_throughput",)
+KEYS = ("training", "episode", *VALIDATION, "rows", "cols", "density", "seed",
+        "avg_travel_velocity_mps", "collisions", "throughput")
+
+Pick = Callable[[Sequence[Mapping[str, Any]]], Mapping[str, Any]]
+
+
+def _run(job: tuple[dict[str, Any], int, int, tuple[int, ...], int, tuple[int, ...]]
+         ) -> list[dict[str, Any]]:
+    """Every (density, seed) run of one network on one grid, as one batch (the comparison's
+    keep-clear rule)."""
+    network, rows, cols, densities, steps, seeds = job
+    runs = run_policy(("pa-dqn", "", network["path"], rows, cols, densities, steps, seeds, {}))
+    head = {k: network[k] for k in ("training", "episode", *VALIDATION)}
+    return [{**head, **{k: run[k] for k in KEYS[3:]}, "density": int(run["density"])}
+            for run in runs]
+
+
+def evaluation(runs: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
+    """Vehicles out per run and average travel velocity [m/s], means over ``runs``."""
+    return (float(np.mean([r["throughput"] for r in runs])),
+            float(np.mean([r["avg_travel_velocity_mps"] for r in runs])))
+
+
+def picks(evaluated: Mapping[tuple[str, int], tuple[float, float]]) -> dict[str, Pick]:
+    """The rules (``last``, ``best``) and the hindsight picks, each choosing one of a
+    training's validated networks (the first of the best); ``evaluated`` maps (training,
+    episode) to :func:`evaluation`'s pair."""
+    def judged(index: int) -> Pick:
+        return lambda rows: max(rows, key=lambda r: evaluated[r["training"], r["episode"]][index])
+
+    return {"last": lambda rows: rows[-1],
+            "best (keep_network=best)": lambda rows: max(
+                rows, key=lambda r: r["validation_throughput"]),
+            "most out in the evaluation (hindsight)": judged(0),
+            "fastest in the evaluation (hindsight)": judged(1)}
+
+
+def evaluations(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]
+                ) -> dict[tuple[str, int], tuple[float, float]]:
+    """(training, episode) -> :func:`evaluation` of that network's runs."""
+    return {(n["training"], n["episode"]): evaluation(
+        [r for r in runs if (r["training"], r["episode"]) == (n["training"], n["episode"])])
+        for n in networks}
+
+
+def summary(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]) -> str:
+    """The markdown of ``validated_networks.md`` (module docstring)."""
+    evaluated = evaluations(networks, runs)
+    trainings = list(dict.fromkeys(n["training"] for n in networks))
+    chosen = {name: {t: pick([n for n in networks if n["training"] == t]) for t in trainings}
+              for name, pick in picks(evaluated).items()}
+    lines = ["### The network each rule keeps: episode / evaluation vehicles out / average "
+             "travel velocity [m/s] (means over the runs)", "",
+             "| training | " + " | ".join(chosen) + " |", "|---" * (len(chosen) + 1) + "|"]
+    for t in trainings:
+        cells = []
+        for name in chosen:
+            n = chosen[name][t]
+            out, velocity = evaluated[t, n["episode"]]
+            cells.append(f"{n['episode']} / {out:.1f} / {velocity:.3f}")
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    validation = np.array([n["validation_throughput"] for n in networks])
+    out = np.array([evaluated[n["training"], n["episode"]][0] for n in networks])
+    velocity = np.array([evaluated[n["training"], n["episode"]][1] for n in networks])
+    lines += ["", f"Over the {len(networks)} networks the validation run's vehicles out and "
+              f"the evaluation's correlate with {pearson(np.c_[validation, out])}; the "
+              f"validation run's vehicles out and the evaluation's average travel velocity "
+              f"with {pearson(np.c_[validation, velocity])}; the evaluation's vehicles out and "
+              f"its average travel velocity with {pearson(np.c_[out, velocity])}.", "",
+              "### Every validated network", "",
+              "| training | episode | validation: vehicles out per environment | evaluation: "
+              "vehicles out / velocity [m/s] | picked by |", "|---|---|---|---|---|"]
+    for n in networks:
+        out_n, velocity_n = evaluated[n["training"], n["episode"]]
+        by = ", ".join(name for name in chosen if chosen[name][n["training"]] is n)
+        lines.append(f"| {n['training']} | {n['episode']} | {n['validation_throughput']:.1f} | "
+                     f"{out_n:.1f} / {velocity_n:.3f} | {by} |")
+    return "\n".join(lines) + "\n"
+
+
+def figure(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]],
+           setting: str, path: Path) -> Path:
+    """Evaluation vehicles out against validation, and evaluation velocity against evaluation
+    vehicles out (on ``setting``, a title), one marker per network, the network
+    ``keep_network="best"`` keeps ringed and the last one squared."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mivecc_agents.signal_dqn import save_figure
+
+    evaluated = evaluations(networks, runs)
+    rules = picks(evaluated)
+    fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
+    for i, t in enumerate(dict.fromkeys(n["training"] for n in networks)):
+        own = [n for n in networks if n["training"] == t]
+        out = [evaluated[t, n["episode"]][0] for n in own]
+        velocity = [evaluated[t, n["episode"]][1] for n in own]
+        kept = own.index(rules["best (keep_network=best)"](own))
+        style = {"marker": "os^vD<>ph*"[i % 10], "ls": "", "ms": 6, "alpha": 0.8}
+        for ax, x, y in ((axes[0], [n["validation_throughput"] for n in own], out),
+                         (axes[1], out, velocity)):
+            line, = ax.plot(x, y, label=t, **style)
+            ax.plot([x[kept]], [y[kept]], "o", ms=15, mfc="none", color=line.get_color())
+            ax.plot([x[-1]], [y[-1]], "s", ms=13, mfc="none", color=line.get_color())
+    axes[0].set_xlabel("greedy validation run: vehicles out per environment")
+    axes[0].set_ylabel("evaluation: vehicles out per run (mean)")
+    axes[1].set_xlabel("evaluation: vehicles out per run (mean)")
+    axes[1].set_ylabel("evaluation: average travel velocity [m/s] (mean over the runs)")
+    axes[0].set_title("vehicles out (ring: kept by keep_network=best; square: the last)")
+    axes[1].set_title("velocity against vehicles out in the evaluation")
+    fig.suptitle(f"PA-DQN's validated networks: validation run against evaluation ({setting})")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return save_figure(fig, path)
+
+
+def main(argv: Sequence[str] | None = None) -> str:
+    p = cli_args.Parser(description=__doc__.splitlines()[0])
+    p.add_argument("--trainings", nargs="+", type=Path, required=True, metavar="DIR",
+                   help="--out folders of `mivecc train-signal --save-validated`")
+    add_run_options(p)
+    p.set_defaults(grids=[(3, 3)])
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results/validated_networks"))
+    args = p.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
+    for option in ("grids", "seeds", "densities"):
+        cli_args.check_distinct(f"--{option}", getattr(args, option))
+    cli_args.check_distinct("--trainings", [t.name for t in args.trainings])
+    networks = [n for t in args.trainings for n in validated(t, VALIDATION)]
+    jobs = [(n, r, c, tuple(args.densities), args.steps, tuple(args.seeds))
+            for n in networks for r, c in args.grids]
+    runs = [run for batch in map_jobs(_run, jobs, args.workers, "network x grid")
+            for run in batch]
+    text = summary(networks, runs)
+    write_runs_and_tables(args.out, "validated_networks", KEYS, runs, "validated_networks.py",
+                          argv, text)
+    setting = (f"{', '.join(f'{r}x{c}' for r, c in args.grids)}, "
+               f"{', '.join(map(str, args.densities))} veh/lane/h, seeds "
+               f"{', '.join(map(str, args.seeds))}, {args.steps} steps")
+    figure(networks, runs, setting, args.out / "validated_networks.png")
+    print(text)
+    return text
+
+
+if __name__ == "__main__":
+    sys.exit(cli_args.run(main))
