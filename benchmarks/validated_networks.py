@@ -13,7 +13,8 @@ first of the best); beside them, in hindsight, the network with the most vehicle
 fastest one in the evaluation (no rule can know them: they show what the validation leaves).
 
 Writes to ``--out``: ``validated_networks.csv`` (every run, with its network's validation
-figure), ``validated_networks.md`` (per training and pick the network and its evaluation;
+figure), ``validated_networks.md`` (per training and pick the network and its evaluation:
+vehicles out, entry backlog and average travel velocity;
 the correlations over the networks of validation and evaluation vehicles out, of validation
 vehicles out and evaluation velocity, and of evaluation vehicles out and velocity; every
 network's validation and evaluation) and ``validated_networks.png`` (evaluation vehicles out
@@ -30,7 +31,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from comparison import add_run_options, write_runs_and_tables
@@ -42,9 +43,17 @@ from mivecc_env.processes import map_jobs
 
 VALIDATION = ("validation_throughput",)
 KEYS = ("training", "episode", *VALIDATION, "rows", "cols", "density", "seed",
-        "avg_travel_velocity_mps", "collisions", "throughput")
+        "avg_travel_velocity_mps", "collisions", "throughput", "backlog")
 
 Pick = Callable[[Sequence[Mapping[str, Any]]], Mapping[str, Any]]
+
+
+class Evaluation(NamedTuple):
+    """A network's evaluation, means over its runs."""
+
+    out: float  #: vehicles that left the network per run
+    backlog: float  #: vehicles still waiting to enter at the end of a run
+    velocity: float  #: average travel velocity of the vehicles out [m/s]
 
 
 def _run(job: tuple[dict[str, Any], int, int, tuple[int, ...], int, tuple[int, ...]]
@@ -58,28 +67,29 @@ def _run(job: tuple[dict[str, Any], int, int, tuple[int, ...], int, tuple[int, .
             for run in runs]
 
 
-def evaluation(runs: Sequence[Mapping[str, Any]]) -> tuple[float, float]:
-    """Vehicles out per run and average travel velocity [m/s], means over ``runs``."""
-    return (float(np.mean([r["throughput"] for r in runs])),
-            float(np.mean([r["avg_travel_velocity_mps"] for r in runs])))
+def evaluation(runs: Sequence[Mapping[str, Any]]) -> Evaluation:
+    """The :class:`Evaluation` of ``runs``."""
+    return Evaluation(*(float(np.mean([r[k] for r in runs]))
+                        for k in ("throughput", "backlog", "avg_travel_velocity_mps")))
 
 
-def picks(evaluated: Mapping[tuple[str, int], tuple[float, float]]) -> dict[str, Pick]:
+def picks(evaluated: Mapping[tuple[str, int], Evaluation]) -> dict[str, Pick]:
     """The rules (``last``, ``best``) and the hindsight picks, each choosing one of a
     training's validated networks (the first of the best); ``evaluated`` maps (training,
-    episode) to :func:`evaluation`'s pair."""
-    def judged(index: int) -> Pick:
-        return lambda rows: max(rows, key=lambda r: evaluated[r["training"], r["episode"]][index])
+    episode) to its :class:`Evaluation`."""
+    def judged(measure: str) -> Pick:
+        return lambda rows: max(
+            rows, key=lambda r: getattr(evaluated[r["training"], r["episode"]], measure))
 
     return {"last": lambda rows: rows[-1],
             "best (keep_network=best)": lambda rows: max(
                 rows, key=lambda r: r["validation_throughput"]),
-            "most out in the evaluation (hindsight)": judged(0),
-            "fastest in the evaluation (hindsight)": judged(1)}
+            "most out in the evaluation (hindsight)": judged("out"),
+            "fastest in the evaluation (hindsight)": judged("velocity")}
 
 
 def evaluations(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]]
-                ) -> dict[tuple[str, int], tuple[float, float]]:
+                ) -> dict[tuple[str, int], Evaluation]:
     """(training, episode) -> :func:`evaluation` of that network's runs."""
     return {(n["training"], n["episode"]): evaluation(
         [r for r in runs if (r["training"], r["episode"]) == (n["training"], n["episode"])])
@@ -92,19 +102,18 @@ def summary(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, A
     trainings = list(dict.fromkeys(n["training"] for n in networks))
     chosen = {name: {t: pick([n for n in networks if n["training"] == t]) for t in trainings}
               for name, pick in picks(evaluated).items()}
-    lines = ["### The network each rule keeps: episode / evaluation vehicles out / average "
-             "travel velocity [m/s] (means over the runs)", "",
+    lines = ["### The network each rule keeps: episode / evaluation vehicles out / backlog "
+             "[veh] / average travel velocity [m/s] (means over the runs)", "",
              "| training | " + " | ".join(chosen) + " |", "|---" * (len(chosen) + 1) + "|"]
     for t in trainings:
         cells = []
         for name in chosen:
             n = chosen[name][t]
-            out, velocity = evaluated[t, n["episode"]]
-            cells.append(f"{n['episode']} / {out:.1f} / {velocity:.3f}")
+            cells.append(f"{n['episode']} / {_cell(evaluated[t, n['episode']])}")
         lines.append(f"| {t} | " + " | ".join(cells) + " |")
     validation = np.array([n["validation_throughput"] for n in networks])
-    out = np.array([evaluated[n["training"], n["episode"]][0] for n in networks])
-    velocity = np.array([evaluated[n["training"], n["episode"]][1] for n in networks])
+    out = np.array([evaluated[n["training"], n["episode"]].out for n in networks])
+    velocity = np.array([evaluated[n["training"], n["episode"]].velocity for n in networks])
     lines += ["", f"Over the {len(networks)} networks the validation run's vehicles out and "
               f"the evaluation's correlate with {pearson(np.c_[validation, out])}; the "
               f"validation run's vehicles out and the evaluation's average travel velocity "
@@ -112,13 +121,17 @@ def summary(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, A
               f"its average travel velocity with {pearson(np.c_[out, velocity])}.", "",
               "### Every validated network", "",
               "| training | episode | validation: vehicles out per environment | evaluation: "
-              "vehicles out / velocity [m/s] | picked by |", "|---|---|---|---|---|"]
+              "vehicles out / backlog [veh] / velocity [m/s] | picked by |",
+              "|---|---|---|---|---|"]
     for n in networks:
-        out_n, velocity_n = evaluated[n["training"], n["episode"]]
         by = ", ".join(name for name in chosen if chosen[name][n["training"]] is n)
         lines.append(f"| {n['training']} | {n['episode']} | {n['validation_throughput']:.1f} | "
-                     f"{out_n:.1f} / {velocity_n:.3f} | {by} |")
+                     f"{_cell(evaluated[n['training'], n['episode']])} | {by} |")
     return "\n".join(lines) + "\n"
+
+
+def _cell(e: Evaluation) -> str:
+    return f"{e.out:.1f} / {e.backlog:.1f} / {e.velocity:.3f}"
 
 
 def figure(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]],
@@ -138,8 +151,8 @@ def figure(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, An
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
     for i, t in enumerate(dict.fromkeys(n["training"] for n in networks)):
         own = [n for n in networks if n["training"] == t]
-        out = [evaluated[t, n["episode"]][0] for n in own]
-        velocity = [evaluated[t, n["episode"]][1] for n in own]
+        out = [evaluated[t, n["episode"]].out for n in own]
+        velocity = [evaluated[t, n["episode"]].velocity for n in own]
         kept = own.index(rules["best (keep_network=best)"](own))
         style = {"marker": "os^vD<>ph*"[i % 10], "ls": "", "ms": 6, "alpha": 0.8}
         for ax, x, y in ((axes[0], [n["validation_throughput"] for n in own], out),

@@ -2046,7 +2046,9 @@ def _validated_actors(folder: Path) -> tuple[str, list[dict]]:
 
 
 def _rules_row(table: str, name: str) -> list[list[str]]:
-    """The cells (episode, events, velocity) of a training's row: last, best, by reward."""
+    """The cells of a training's row of a rules table (``validated_actors.md``: episode,
+    events, velocity of last, best, by reward; ``validated_networks.md``: episode, vehicles
+    out, backlog, velocity of last, best and the two hindsight picks)."""
     line = next(x for x in table.splitlines() if x.startswith(f"| {name} | "))
     return [c.split(" / ") for c in line.strip("| ").split(" | ")[1:]]
 
@@ -2258,3 +2260,85 @@ def test_keeping_the_best_validated_comaddpg_actor_beside_the_last() -> None:
     assert ("strict events on 3x3 go from "
             f"{', '.join(str(events(f'last_{n}', 3)) for n in names[:3])} to "
             f"{', '.join(str(events(f'best_{n}', 3)) for n in names[:3])}") in readme
+
+
+def test_every_validated_pa_dqn_network() -> None:
+    """docs/comparators.md, "Every validated PA-DQN network": the committed study's table, its
+    networks' validation figures are the seed table's logged validation runs (the trainings
+    rerun with --save-validated), and every figure of its bullets."""
+    import csv
+
+    from mivecc_agents.signal_dqn import kept_episodes
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    seeds_dir = ROOT / "docs" / "results" / "pa_dqn" / "keep_best_3x3" / "training_seeds"
+    folder = seeds_dir / "validated_networks"
+    md = (folder / "validated_networks.md").read_text(encoding="utf-8")
+    table = md[md.index("| training | last |"):md.index("Over the 60")].strip()
+    assert " ".join(table.split()) in docs
+    with open(folder / "validated_networks.csv", newline="", encoding="utf-8") as fh:
+        runs = list(csv.DictReader(fh))
+    trainings = [f"pa_dqn_seed{s}" for s in range(3)]
+    networks: dict = {}
+    for r in runs:
+        n = networks.setdefault((r["training"], int(r["episode"])), {
+            "validation": float(r["validation_throughput"]), "runs": []})
+        n["runs"].append(r)
+    assert sorted(networks) == [(t, e) for t in trainings for e in range(21, 41)]
+    for s, t in enumerate(trainings):  # the trainings are the seed table's (same validation)
+        with open(seeds_dir / f"best_seed{s}" / "train_log.csv", newline="",
+                  encoding="utf-8") as fh:
+            log = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+        logged = {int(r["episode"]): r["validation_throughput"] for r in log
+                  if r["validation_throughput"] == r["validation_throughput"]}
+        assert logged == {e: networks[t, e]["validation"] for e in range(21, 41)}
+        assert _rules_row(table, t)[1][0] == str(kept_episodes(log)[0][1])
+    for n in networks.values():
+        assert len(n["runs"]) == 21
+        n["out"], n["backlog"], n["velocity"] = (float(np.mean([float(r[k]) for r in n["runs"]]))
+                                                 for k in ("throughput", "backlog",
+                                                           "avg_travel_velocity_mps"))
+
+    def r(x: str, y: str) -> str:
+        pairs = [(n[x], n[y]) for n in networks.values()]
+        return f"{np.corrcoef(np.array(pairs).T)[0, 1]:.2f}"
+
+    assert f"correlate with Pearson r = {r('validation', 'out')}." in docs
+    assert (f"correlate with r = {r('out', 'velocity')} over the networks (validation vehicles "
+            f"out and evaluation velocity: r = {r('validation', 'velocity')})") in docs
+    picks = {t: _rules_row(table, t) for t in trainings}
+
+    def listed(values: list[float], digits: int) -> str:
+        return f"{values[0]:.{digits}f}, {values[1]:.{digits}f} and {values[2]:.{digits}f}"
+
+    gap = [float(picks[t][2][1]) - float(picks[t][1][1]) for t in trainings]
+    gain = [float(picks[t][1][1]) - float(picks[t][0][1]) for t in trainings]
+    loss = [float(picks[t][0][3]) - float(picks[t][1][3]) for t in trainings]
+    assert min(loss) > 0
+    assert (f"lets out {listed(gap, 1)} fewer vehicles per run than the best network in "
+            f"hindsight (seeds 0, 1, 2) and {listed(gain, 1)} more than the last one") in docs
+    assert f"slower than the last one at every seed (by {listed(loss, 3)} m/s)" in docs
+    fast_out, fast_backlog = [], []
+    for t in trainings:
+        own = {e: n for (tt, e), n in networks.items() if tt == t}
+        fast = max(own, key=lambda e: own[e]["velocity"])
+        assert picks[t][3][0] == str(fast)
+        assert sorted(own, key=lambda e: own[e]["out"]).index(fast) <= 1  # fewest or 2nd
+        assert sorted(own, key=lambda e: -own[e]["backlog"]).index(fast) <= 1
+        fast_out.append(own[fast]["out"])
+        fast_backlog.append(own[fast]["backlog"])
+    assert (f"({listed(fast_out, 1)} vehicles out; {listed(fast_backlog, 1)} waiting to "
+            "enter)") in docs
+
+    def run(episode: int) -> dict:
+        return next(x for x in networks["pa_dqn_seed0", episode]["runs"]
+                    if (x["density"], x["seed"]) == ("1500", "0"))
+
+    fast, kept = run(30), run(26)
+    assert picks["pa_dqn_seed0"][3][0] == "30" and picks["pa_dqn_seed0"][1][0] == "26"
+    assert (f"episode 30) reaches {float(fast['avg_travel_velocity_mps']):.2f} m/s with "
+            f"{float(fast['throughput']):.0f} vehicles out and {float(fast['backlog']):.0f} "
+            f"waiting to enter, the one the training keeps (episode 26) "
+            f"{float(kept['avg_travel_velocity_mps']):.2f} m/s with "
+            f"{float(kept['throughput']):.0f} out and {float(kept['backlog']):.0f} waiting") in docs
+
