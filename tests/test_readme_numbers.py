@@ -2342,3 +2342,39 @@ def test_every_validated_pa_dqn_network() -> None:
             f"{float(kept['avg_travel_velocity_mps']):.2f} m/s with "
             f"{float(kept['throughput']):.0f} out and {float(kept['backlog']):.0f} waiting") in docs
 
+
+
+def test_what_comaddpg_validation_leaves_is_in_the_actors() -> None:
+    """docs/comparators.md, "What is left is in the actors, not in the pick": the kept actors
+    with 21 validation environments against each training's best validated actor in
+    hindsight, from the committed evaluation."""
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    folder = ROOT / "docs" / "results" / "comaddpg" / "keep_best"
+    _, rows = _validation_size(folder / "validation_size")
+    kept_episodes = [cell.split(" / ")[0] for cell in rows["21"][:len(COMADDPG_TRAININGS)]]
+    import csv
+
+    events: dict = {}
+    with open(folder / "validated_actors.csv", newline="", encoding="utf-8") as fh:
+        for r in csv.DictReader(fh):
+            key = (r["training"], r["episode"])
+            events.setdefault(key, [float(r["validation_collisions"]), 0.0])[1] += float(
+                r["collisions"])
+    kept, best, colliding = [], [], []
+    for name, episode in zip(COMADDPG_TRAININGS, kept_episodes, strict=True):
+        own = [v for (t, _), v in events.items() if t == name]
+        kept.append(events[name, episode][1])
+        best.append(min(e for _, e in own))
+        if min(v for v, _ in own) > 0:
+            colliding.append((min(v for v, _ in own), kept[-1]))
+    gaps = [k - b for k, b in zip(kept, best, strict=True)]
+    assert min(gaps) >= 0
+    assert (f"kept actor has at most {max(gaps):.0f} strict events more in the evaluation than "
+            f"the best of its validated actors in hindsight (the fewest events any of them "
+            f"has: {sum(best):.0f} over the six trainings against the kept actors' "
+            f"{sum(kept):.0f},") in docs
+    words = {1: "One", 2: "Two", 3: "Three", 4: "Four", 5: "Five", 6: "Six"}
+    assert (f"{words[len(colliding)]} of the six trainings have no actor without a validation "
+            f"collision ({min(v for v, _ in colliding):.0f} to "
+            f"{max(v for v, _ in colliding):.0f} events at best), and they carry "
+            f"{sum(k for _, k in colliding):.0f} of the {sum(kept):.0f} events") in docs
