@@ -190,20 +190,28 @@ def _add_train_parser(subparsers: Any, name: str) -> argparse.ArgumentParser:
     return p
 
 
-def cmd_train_signal(args: argparse.Namespace) -> int:
-    """Run a training command of :data:`TRAIN_COMMANDS` (``mivecc train-signal``, ...)."""
-    import importlib
+def train_settings(args: argparse.Namespace) -> Any:
+    """The checked settings of a parsed training subcommand of :data:`TRAIN_COMMANDS`
+    (:class:`ConfigError` naming the first bad field)."""
+    from mivecc_agents.cli import parse_set_items
 
-    from mivecc_agents.cli import parse_set_items, set_inference_threads
-    from mivecc_agents.train_checks import quiet_train_output
-
-    command = TRAIN_COMMANDS[args.train_command]
-    settings_cls = _attr(command.settings)
+    settings_cls = _attr(TRAIN_COMMANDS[args.train_command].settings)
     settings_kw = {f.name: getattr(args, f.name) for f in dataclasses.fields(settings_cls)
                    if f.name not in ("config", "densities")}
     settings_kw["densities"] = tuple(args.densities)
     settings_kw["config"] = parse_set_items(args.set_items)
-    settings = settings_cls(**settings_kw).check()
+    return settings_cls(**settings_kw).check()
+
+
+def cmd_train_signal(args: argparse.Namespace) -> int:
+    """Run a training command of :data:`TRAIN_COMMANDS` (``mivecc train-signal``, ...)."""
+    import importlib
+
+    from mivecc_agents.cli import set_inference_threads
+    from mivecc_agents.train_checks import quiet_train_output
+
+    command = TRAIN_COMMANDS[args.train_command]
+    settings = train_settings(args)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out: {out} is a file; give a folder")

@@ -31,6 +31,7 @@ import released_reference
 import released_study
 import rules_study
 import shield_stress
+import signal_sweep
 import stacking_audit
 import table_diff
 import trace_collisions
@@ -781,3 +782,48 @@ def test_validated_networks_evaluates_every_validated_pa_dqn_network_and_the_pic
         comaddpg_like.mkdir()
         (comaddpg_like / "train_log.csv").write_text("episode,validation_collisions\n1,0\n")
         validated_networks.main(["--trainings", str(comaddpg_like), "--out", str(out)])
+
+
+def test_signal_sweep_trains_every_variant_and_seed_and_ranks_the_kept_scores(
+        tmp_path: Path) -> None:
+    import torch
+
+    from mivecc_agents.signal_dqn import kept_episodes
+    from mivecc_env import cli_args
+
+    common = "--episodes 2 --batch 2 --episode-steps 600 --warmup 1 --densities 900 2100"
+    out = tmp_path / "sweep"
+    text = signal_sweep.main(["--variant", "default=", "lr=--lr 3e-3", "--options", common,
+                              "--seeds", "0", "1", "--workers", "2", "--out", str(out)])
+    with open(out / "signal_sweep.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [(r["variant"], r["seed"], r["options"]) for r in rows] == [
+        ("default", "0", ""), ("default", "1", ""), ("lr", "0", "--lr 3e-3"),
+        ("lr", "1", "--lr 3e-3")]
+    for r in rows:  # each row is its training's kept network, as the trainer logged it
+        folder = out / f"{r['variant']}_seed{r['seed']}"
+        with open(folder / "train_log.csv", newline="", encoding="utf-8") as fh:
+            log = [{k: float(v) for k, v in x.items()} for x in csv.DictReader(fh)]
+        (_, episode, kept, _), = kept_episodes(log)
+        assert (int(r["kept_episode"]), float(r["kept_validation_throughput"])) == (episode,
+                                                                                    kept)
+        settings = torch.load(folder / "signal_dqn.pt", weights_only=False)["settings"]
+        assert settings["seed"] == int(r["seed"]) and settings["keep_network"] == "best"
+        assert settings["lr"] == (3e-3 if r["variant"] == "lr" else 1e-3)
+        assert settings["densities"] in ([900.0, 2100.0], (900.0, 2100.0))
+        assert "kept the network" in (folder / "output.txt").read_text()
+    means = {v: np.mean([float(r["kept_validation_throughput"]) for r in rows
+                         if r["variant"] == v]) for v in ("default", "lr")}
+    table = [x for x in text.splitlines() if x.startswith("| ")][1:]  # after the header
+    assert [x.split(" | ")[0] for x in table] == [
+        f"| {v}" for v in sorted(means, key=lambda v: -means[v])]
+    assert f"| {means['lr']:.1f} | {means['lr'] - means['default']:+.1f} |" in text
+    assert f"Options of every variant: `{common}`." in text
+    assert (out / "signal_sweep.png").stat().st_size > 10_000
+    for bad, message in ((["--variant", "x=--lr -1"], r"--variant x: lr: must be"),
+                         (["--variant", "x=--bogus 1"], "--variant x: .*unrecognized"),
+                         (["--variant", "a=", "a=--lr 0.1"], "--variant")):
+        with pytest.raises(cli_args.InputError, match=message):
+            signal_sweep.main([*bad, "--out", str(tmp_path / "bad")])
+    with pytest.raises(SystemExit):  # a usage error: one line, exit 2
+        signal_sweep.main(["--variant", "x=--out y", "--out", str(tmp_path / "bad")])
