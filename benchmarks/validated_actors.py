@@ -171,7 +171,6 @@ def figure(actors: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mivecc_agents.signal_dqn import save_figure
 
     best = rules()["best (keep_network=best)"]
     fig, axes = plt.subplots(1, 2, figsize=(13, 5.5))
@@ -197,7 +196,55 @@ def figure(actors: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]
     axes[1].set_ylabel("evaluation: average travel velocity [m/s] (mean over the runs)")
     axes[0].set_title("collisions (ring: the actor keep_network=best keeps)")
     axes[1].set_title("velocity")
-    fig.suptitle(f"CoMADDPG's validated actors: validation run against evaluation ({setting})")
+    return finish_figure(fig, axes, "CoMADDPG's validated actors: validation run against "
+                         f"evaluation ({setting})", path)
+
+
+def study(argv: Sequence[str] | None, script: str, description: str, command: str,
+          columns: Sequence[str], keys: Sequence[str], run: Callable[[Any], list[Any]],
+          summarise: Callable[[list[Any], list[Any]], str],
+          draw: Callable[[list[Any], list[Any], str, Path], Path],
+          **defaults: Any) -> str:
+    """The command line of a study of every validated network of some ``--save-validated``
+    trainings (this script's, ``validated_networks.py``'s): parse and check the arguments
+    (the comparison's run options, ``defaults`` over them), evaluate every network of
+    :func:`validated` (validation ``columns``) with ``run`` on every grid, write
+    ``<stem>.csv`` (``keys``) and ``<stem>.md`` (``summarise``'s text) and ``<stem>.png``
+    (``draw``) to ``--out``, print the text and return it; ``command``: the training command
+    the trainings come from, ``script``: ``<stem>.py``, ``description``: its help line."""
+    stem = Path(script).stem
+    p = cli_args.Parser(description=description)
+    p.add_argument("--trainings", nargs="+", type=Path, required=True, metavar="DIR",
+                   help=f"--out folders of `{command} --save-validated`")
+    add_run_options(p)
+    p.set_defaults(**defaults)
+    p.add_argument("--out", type=Path, default=Path("benchmarks/results") / stem)
+    args = p.parse_args(argv)
+    cli_args.writable_dir("--out", args.out)
+    for option in ("grids", "seeds", "densities"):
+        cli_args.check_distinct(f"--{option}", getattr(args, option))
+    cli_args.check_distinct("--trainings", [t.name for t in args.trainings])
+    networks = [n for t in args.trainings for n in validated(t, columns)]
+    jobs = [(n, r, c, tuple(args.densities), args.steps, tuple(args.seeds))
+            for n in networks for r, c in args.grids]
+    runs = [row for batch in map_jobs(run, jobs, args.workers, "network x grid")
+            for row in batch]
+    text = summarise(networks, runs)
+    write_runs_and_tables(args.out, stem, keys, runs, script, argv, text)
+    setting = (f"{', '.join(f'{r}x{c}' for r, c in args.grids)}, "
+               f"{', '.join(map(str, args.densities))} veh/lane/h, seeds "
+               f"{', '.join(map(str, args.seeds))}, {args.steps} steps")
+    draw(networks, runs, setting, args.out / f"{stem}.png")
+    print(text)
+    return text
+
+
+def finish_figure(fig: Any, axes: Sequence[Any], title: str, path: Path) -> Path:
+    """Title, grids and the legend (right of the second panel) of a study's two-panel
+    figure; saved to ``path``."""
+    from mivecc_agents.signal_dqn import save_figure
+
+    fig.suptitle(title)
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
@@ -205,31 +252,9 @@ def figure(actors: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, Any]
 
 
 def main(argv: Sequence[str] | None = None) -> str:
-    p = cli_args.Parser(description=__doc__.splitlines()[0])
-    p.add_argument("--trainings", nargs="+", type=Path, required=True, metavar="DIR",
-                   help="--out folders of `mivecc train-comaddpg --save-validated`")
-    add_run_options(p)
-    p.set_defaults(grids=[(3, 3)], densities=[1200, 1500, 1800, 2100])
-    p.add_argument("--out", type=Path, default=Path("benchmarks/results/validated_actors"))
-    args = p.parse_args(argv)
-    cli_args.writable_dir("--out", args.out)
-    for option in ("grids", "seeds", "densities"):
-        cli_args.check_distinct(f"--{option}", getattr(args, option))
-    cli_args.check_distinct("--trainings", [t.name for t in args.trainings])
-    actors = [a for t in args.trainings for a in validated(t)]
-    jobs = [(a, r, c, tuple(args.densities), args.steps, tuple(args.seeds))
-            for a in actors for r, c in args.grids]
-    runs = [run for batch in map_jobs(_run, jobs, args.workers, "actor x grid")
-            for run in batch]
-    text = summary(actors, runs)
-    write_runs_and_tables(args.out, "validated_actors", KEYS, runs, "validated_actors.py",
-                          argv, text)
-    setting = (f"{', '.join(f'{r}x{c}' for r, c in args.grids)}, "
-               f"{', '.join(map(str, args.densities))} veh/lane/h, seeds "
-               f"{', '.join(map(str, args.seeds))}, {args.steps} steps")
-    figure(actors, runs, setting, args.out / "validated_actors.png")
-    print(text)
-    return text
+    return study(argv, "validated_actors.py", __doc__.splitlines()[0], "mivecc train-comaddpg",
+                 VALIDATION, KEYS, _run, summary, figure, grids=[(3, 3)],
+                 densities=[1200, 1500, 1800, 2100])
 
 
 if __name__ == "__main__":

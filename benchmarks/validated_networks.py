@@ -34,12 +34,10 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from comparison import add_run_options, write_runs_and_tables
 from learned_policies import _run as run_policy
-from validated_actors import pearson, validated
+from validated_actors import finish_figure, pearson, study
 
 from mivecc_env import cli_args
-from mivecc_env.processes import map_jobs
 
 VALIDATION = ("validation_throughput",)
 KEYS = ("training", "episode", *VALIDATION, "rows", "cols", "density", "seed",
@@ -144,7 +142,6 @@ def figure(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, An
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mivecc_agents.signal_dqn import save_figure
 
     evaluated = evaluations(networks, runs)
     rules = picks(evaluated)
@@ -166,39 +163,13 @@ def figure(networks: Sequence[Mapping[str, Any]], runs: Sequence[Mapping[str, An
     axes[1].set_ylabel("evaluation: average travel velocity [m/s] (mean over the runs)")
     axes[0].set_title("vehicles out (ring: kept by keep_network=best; square: the last)")
     axes[1].set_title("velocity against vehicles out in the evaluation")
-    fig.suptitle(f"PA-DQN's validated networks: validation run against evaluation ({setting})")
-    for ax in axes:
-        ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    return save_figure(fig, path)
+    return finish_figure(fig, axes, "PA-DQN's validated networks: validation run against "
+                         f"evaluation ({setting})", path)
 
 
 def main(argv: Sequence[str] | None = None) -> str:
-    p = cli_args.Parser(description=__doc__.splitlines()[0])
-    p.add_argument("--trainings", nargs="+", type=Path, required=True, metavar="DIR",
-                   help="--out folders of `mivecc train-signal --save-validated`")
-    add_run_options(p)
-    p.set_defaults(grids=[(3, 3)])
-    p.add_argument("--out", type=Path, default=Path("benchmarks/results/validated_networks"))
-    args = p.parse_args(argv)
-    cli_args.writable_dir("--out", args.out)
-    for option in ("grids", "seeds", "densities"):
-        cli_args.check_distinct(f"--{option}", getattr(args, option))
-    cli_args.check_distinct("--trainings", [t.name for t in args.trainings])
-    networks = [n for t in args.trainings for n in validated(t, VALIDATION)]
-    jobs = [(n, r, c, tuple(args.densities), args.steps, tuple(args.seeds))
-            for n in networks for r, c in args.grids]
-    runs = [run for batch in map_jobs(_run, jobs, args.workers, "network x grid")
-            for run in batch]
-    text = summary(networks, runs)
-    write_runs_and_tables(args.out, "validated_networks", KEYS, runs, "validated_networks.py",
-                          argv, text)
-    setting = (f"{', '.join(f'{r}x{c}' for r, c in args.grids)}, "
-               f"{', '.join(map(str, args.densities))} veh/lane/h, seeds "
-               f"{', '.join(map(str, args.seeds))}, {args.steps} steps")
-    figure(networks, runs, setting, args.out / "validated_networks.png")
-    print(text)
-    return text
+    return study(argv, "validated_networks.py", __doc__.splitlines()[0], "mivecc train-signal",
+                 VALIDATION, KEYS, _run, summary, figure, grids=[(3, 3)])
 
 
 if __name__ == "__main__":
