@@ -2378,3 +2378,59 @@ def test_what_comaddpg_validation_leaves_is_in_the_actors() -> None:
             f"collision ({min(v for v, _ in colliding):.0f} to "
             f"{max(v for v, _ in colliding):.0f} events at best), and they carry "
             f"{sum(k for _, k in colliding):.0f} of the {sum(kept):.0f} events") in docs
+
+
+def test_a_recipe_sweep_of_pa_dqn() -> None:
+    """docs/comparators.md, "A recipe sweep of PA-DQN": the committed sweep's table, its
+    default trainings are the 1x1 training-seed trainings, and the bullets' figures."""
+    import csv
+    from collections import defaultdict
+
+    from mivecc_agents.signal_dqn import kept_episodes
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    folder = ROOT / "docs" / "results" / "pa_dqn" / "recipe_sweep_1x1"
+    md = (folder / "signal_sweep.md").read_text(encoding="utf-8")
+    assert " ".join(md[md.index("| variant |"):].split()) in docs
+    with open(folder / "signal_sweep.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    scores: dict = defaultdict(list)
+    for r in rows:
+        scores[r["variant"]].append(float(r["kept_validation_throughput"]))
+    seeds_dir = ROOT / "docs" / "results" / "pa_dqn" / "keep_best_1x1" / "training_seeds"
+    for r in (r for r in rows if r["variant"] == "default"):
+        with open(seeds_dir / f"best_seed{r['seed']}" / "train_log.csv", newline="",
+                  encoding="utf-8") as fh:
+            log = [{k: float(v) for k, v in x.items()} for x in csv.DictReader(fh)]
+        (_, episode, kept, _), = kept_episodes(log)
+        assert (int(r["kept_episode"]), float(r["kept_validation_throughput"])) == (episode,
+                                                                                    kept)
+    base = np.mean(scores["default"])
+    gain = {v: np.mean(x) - base for v, x in scores.items()}
+    spread = max(scores["default"]) - min(scores["default"])
+    best = max(gain, key=gain.get)
+    assert best == "eps_0.25" and 0 < gain[best] <= spread
+    losers = sorted((v for v in gain if gain[v] < -spread), key=gain.get)
+    assert losers == ["period_20", "gamma_0.99", "lr_3e-4"]
+    assert (f"by more than the spread of the default's own seeds ({spread:.1f} vehicles): the "
+            f"best, `eps_0.25` (the exploration decays over a quarter of the decisions instead "
+            f"of half), by {gain[best]:.1f}. Three changes lose more than that: a 20 s decision "
+            f"period ({gain['period_20']:.1f}), gamma 0.99 ({gain['gamma_0.99']:.1f}) and a "
+            f"learning rate of 3e-4 ({gain['lr_3e-4']:.1f})") in docs
+    out: dict = defaultdict(lambda: defaultdict(list))
+    velocity: dict = defaultdict(lambda: defaultdict(list))
+    with open(folder / "learned_policies.csv", newline="", encoding="utf-8") as fh:
+        for r in csv.DictReader(fh):
+            out[r["policy"]][r["density"]].append(float(r["throughput"]))
+            velocity[r["policy"]][r["density"]].append(float(r["avg_travel_velocity_mps"]))
+
+    def total(table: dict, policy: str) -> float:
+        return sum(np.mean(v) for v in table[policy].values())
+
+    more = [total(out, f"eps_0.25_seed{s}") - total(out, f"default_seed{s}") for s in range(3)]
+    faster = [(total(velocity, f"eps_0.25_seed{s}") - total(velocity, f"default_seed{s}")) / 7
+              for s in range(3)]
+    words = [f"{abs(d):.1f} {'more' if d > 0 else 'fewer'}" for d in more]
+    assert (f"`eps_0.25` lets out {words[0]}, {words[1]} and {words[2]} vehicles than the "
+            f"default at training seeds 0, 1 and 2, with a mean velocity over the densities "
+            f"higher by {faster[0]:.3f}, {faster[1]:.3f} and {faster[2]:.3f} m/s") in docs
