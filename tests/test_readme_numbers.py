@@ -2304,6 +2304,10 @@ def test_every_validated_pa_dqn_network() -> None:
         return f"{np.corrcoef(np.array(pairs).T)[0, 1]:.2f}"
 
     assert f"correlate with Pearson r = {r('validation', 'out')}." in docs
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    assert (f"predict the evaluation's (Pearson r = {r('validation', 'out')} over "
+            f"{len(networks)} networks), and the evaluation's velocity falls as its vehicles "
+            f"out rise (r = {r('out', 'velocity')})") in readme
     assert (f"correlate with r = {r('out', 'velocity')} over the networks (validation vehicles "
             f"out and evaluation velocity: r = {r('validation', 'velocity')})") in docs
     picks = {t: _rules_row(table, t) for t in trainings}
@@ -2410,6 +2414,10 @@ def test_a_recipe_sweep_of_pa_dqn() -> None:
     spread = max(scores["default"]) - min(scores["default"])
     best = max(gain, key=gain.get)
     assert best == "eps_0.25" and 0 < gain[best] <= spread
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    number_words = {8: "eight"}
+    assert (f"none of {number_words[len(gain) - 1]} one-setting changes beats it beyond its "
+            "own seed spread") in readme
     losers = sorted((v for v in gain if gain[v] < -spread), key=gain.get)
     assert losers == ["period_20", "gamma_0.99", "lr_3e-4"]
     assert (f"by more than the spread of the default's own seeds ({spread:.1f} vehicles): the "
