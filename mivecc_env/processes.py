@@ -43,4 +43,10 @@ def map_jobs(fn: Callable[[J], R], jobs: Sequence[J], workers: int, desc: str,
     if workers <= 1 or len(jobs) <= 1:
         return [fn(job) for job in tqdm(jobs, **options)]
     with mp.get_context("spawn").Pool(min(workers, len(jobs))) as pool:
-        return list(tqdm(pool.imap(fn, jobs), **options))
+        results = list(tqdm(pool.imap(fn, jobs), **options))
+        # let the workers exit on their own (leaving the block terminates them), so that
+        # what they hold is released: e.g. TorchRL's replay buffers hold semaphores, which a
+        # terminated worker leaks (a resource_tracker warning at the end)
+        pool.close()
+        pool.join()
+    return results
