@@ -2442,3 +2442,32 @@ def test_a_recipe_sweep_of_pa_dqn() -> None:
     assert (f"`eps_0.25` lets out {words[0]}, {words[1]} and {words[2]} vehicles than the "
             f"default at training seeds 0, 1 and 2, with a mean velocity over the densities "
             f"higher by {faster[0]:.3f}, {faster[1]:.3f} and {faster[2]:.3f} m/s") in docs
+
+
+def test_the_validated_pa_dqn_trainings_are_the_seed_tables() -> None:
+    """docs/comparators.md, "Every validated PA-DQN network": the --save-validated reruns'
+    logs equal the committed keep-best trainings' but for the clock; their training times and
+    closing lines."""
+    import csv
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    seeds_dir = ROOT / "docs" / "results" / "pa_dqn" / "keep_best_3x3" / "training_seeds"
+    clocks = []
+    for s in range(3):
+        logs = []
+        for path in (seeds_dir / "validated_networks" / f"pa_dqn_seed{s}",
+                     seeds_dir / f"best_seed{s}"):
+            with open(path / "train_log.csv", newline="", encoding="utf-8") as fh:
+                logs.append(list(csv.DictReader(fh)))
+        rerun, committed = logs
+        assert [{k: v for k, v in r.items() if k != "wall_s"} for r in rerun] == [
+            {k: v for k, v in r.items() if k != "wall_s"} for r in committed]
+        clocks.append(round(float(rerun[-1]["wall_s"])))
+        closing = (seeds_dir / "validated_networks" / f"pa_dqn_seed{s}" / "output.txt"
+                   ).read_text(encoding="utf-8")
+        assert "kept the network of the best greedy validation run" in closing
+
+    def clock(seconds: int) -> str:
+        return f"{seconds // 60} min {seconds % 60} s"
+
+    assert f"({clock(min(clocks))} to {clock(max(clocks))} of training, seeds 0 and 1" in docs
