@@ -2471,3 +2471,54 @@ def test_the_validated_pa_dqn_trainings_are_the_seed_tables() -> None:
         return f"{seconds // 60} min {seconds % 60} s"
 
     assert f"({clock(min(clocks))} to {clock(max(clocks))} of training, seeds 0 and 1" in docs
+
+
+def test_a_recipe_sweep_of_pa_dqn_on_3x3() -> None:
+    """docs/comparators.md, "On 3x3 the recipe is not on a plateau": the committed sweep's
+    table, its default trainings are the 3x3 seed table's, and the evaluation's figures."""
+    import csv
+    from collections import defaultdict
+
+    from mivecc_agents.signal_dqn import kept_episodes
+
+    docs = " ".join((ROOT / "docs" / "comparators.md").read_text(encoding="utf-8").split())
+    folder = ROOT / "docs" / "results" / "pa_dqn" / "recipe_sweep_3x3"
+    md = (folder / "signal_sweep.md").read_text(encoding="utf-8")
+    assert " ".join(md[md.index("| variant |"):].split()) in docs
+    seeds_dir = ROOT / "docs" / "results" / "pa_dqn" / "keep_best_3x3" / "training_seeds"
+    with open(folder / "signal_sweep.csv", newline="", encoding="utf-8") as fh:
+        for r in (r for r in csv.DictReader(fh) if r["variant"] == "default"):
+            with open(seeds_dir / f"best_seed{r['seed']}" / "train_log.csv", newline="",
+                      encoding="utf-8") as log_fh:
+                log = [{k: float(v) for k, v in x.items()} for x in csv.DictReader(log_fh)]
+            (_, episode, kept, _), = kept_episodes(log)
+            assert (int(r["kept_episode"]), float(r["kept_validation_throughput"])) == (
+                episode, kept)
+    out: dict = defaultdict(lambda: defaultdict(list))
+    velocity: dict = defaultdict(lambda: defaultdict(list))
+    with open(folder / "learned_policies.csv", newline="", encoding="utf-8") as fh:
+        for r in csv.DictReader(fh):
+            out[r["policy"]][int(r["density"])].append(float(r["throughput"]))
+            velocity[r["policy"]][int(r["density"])].append(float(r["avg_travel_velocity_mps"]))
+    texts = {}
+    for variant in ("period_5", "eps_0.25"):
+        more, faster = [], []
+        for s in (0, 1):
+            p, d = out[f"{variant}_seed{s}"], out[f"default_seed{s}"]
+            assert all(np.mean(p[k]) > np.mean(d[k]) for k in d)  # at every density
+            more.append(sum(np.mean(v) for v in p.values()) - sum(np.mean(v) for v in d.values()))
+            pv, dv = velocity[f"{variant}_seed{s}"], velocity[f"default_seed{s}"]
+            faster.append(np.mean([np.mean(v) for v in pv.values()])
+                          - np.mean([np.mean(v) for v in dv.values()]))
+        assert min(faster) > 0  # README: "at a higher mean velocity"
+        texts[variant] = (f"{more[0]:.1f} and {more[1]:.1f}", f"{faster[0]:.3f} and "
+                          f"{faster[1]:.3f}")
+    assert (f"a 5 s decision period lets out {texts['period_5'][0]} more vehicles than the "
+            f"default at training seeds 0 and 1 with a mean velocity higher by "
+            f"{texts['period_5'][1]} m/s, `eps_0.25` {texts['eps_0.25'][0]} more at "
+            f"{texts['eps_0.25'][1]} m/s higher") in docs
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    assert ("on 3x3 it does not: a 5 s decision period lets out more vehicles at every "
+            "density, at a higher mean velocity") in readme
+    at_2100 = [(np.mean(velocity[p][2100]), np.mean(out[p][2100])) for p in velocity]
+    assert max(v for v, _ in at_2100) < 5.0 and max(o for _, o in at_2100) < 690
