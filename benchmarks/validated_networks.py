@@ -79,9 +79,14 @@ def picks(evaluated: Mapping[tuple[str, int], Evaluation]) -> dict[str, Pick]:
         return lambda rows: max(
             rows, key=lambda r: getattr(evaluated[r["training"], r["episode"]], measure))
 
+    def kept(rows: Sequence[Mapping[str, Any]]) -> Mapping[str, Any]:
+        from mivecc_agents.signal_dqn import kept_episodes  # the trainer's own rule
+
+        (_, episode, _, _), = kept_episodes(rows)
+        return next(r for r in rows if r["episode"] == episode)
+
     return {"last": lambda rows: rows[-1],
-            "best (keep_network=best)": lambda rows: max(
-                rows, key=lambda r: r["validation_throughput"]),
+            "best (keep_network=best)": kept,
             "most out in the evaluation (hindsight)": judged("out"),
             "fastest in the evaluation (hindsight)": judged("velocity")}
 

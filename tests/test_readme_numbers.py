@@ -2425,12 +2425,7 @@ def test_a_recipe_sweep_of_pa_dqn() -> None:
             f"of half), by {gain[best]:.1f}. Three changes lose more than that: a 20 s decision "
             f"period ({gain['period_20']:.1f}), gamma 0.99 ({gain['gamma_0.99']:.1f}) and a "
             f"learning rate of 3e-4 ({gain['lr_3e-4']:.1f})") in docs
-    out: dict = defaultdict(lambda: defaultdict(list))
-    velocity: dict = defaultdict(lambda: defaultdict(list))
-    with open(folder / "learned_policies.csv", newline="", encoding="utf-8") as fh:
-        for r in csv.DictReader(fh):
-            out[r["policy"]][r["density"]].append(float(r["throughput"]))
-            velocity[r["policy"]][r["density"]].append(float(r["avg_travel_velocity_mps"]))
+    out, velocity = _runs_by_policy(folder)
 
     def total(table: dict, policy: str) -> float:
         return sum(np.mean(v) for v in table[policy].values())
@@ -2477,7 +2472,6 @@ def test_a_recipe_sweep_of_pa_dqn_on_3x3() -> None:
     """docs/comparators.md, "On 3x3 the recipe is not on a plateau": the committed sweep's
     table, its default trainings are the 3x3 seed table's, and the evaluation's figures."""
     import csv
-    from collections import defaultdict
 
     from mivecc_agents.signal_dqn import kept_episodes
 
@@ -2494,12 +2488,7 @@ def test_a_recipe_sweep_of_pa_dqn_on_3x3() -> None:
             (_, episode, kept, _), = kept_episodes(log)
             assert (int(r["kept_episode"]), float(r["kept_validation_throughput"])) == (
                 episode, kept)
-    out: dict = defaultdict(lambda: defaultdict(list))
-    velocity: dict = defaultdict(lambda: defaultdict(list))
-    with open(folder / "learned_policies.csv", newline="", encoding="utf-8") as fh:
-        for r in csv.DictReader(fh):
-            out[r["policy"]][int(r["density"])].append(float(r["throughput"]))
-            velocity[r["policy"]][int(r["density"])].append(float(r["avg_travel_velocity_mps"]))
+    out, velocity = _runs_by_policy(folder)
     texts = {}
     for variant in ("period_5", "eps_0.25"):
         more, faster = [], []
@@ -2522,3 +2511,18 @@ def test_a_recipe_sweep_of_pa_dqn_on_3x3() -> None:
             "density, at a higher mean velocity") in readme
     at_2100 = [(np.mean(velocity[p][2100]), np.mean(out[p][2100])) for p in velocity]
     assert max(v for v, _ in at_2100) < 5.0 and max(o for _, o in at_2100) < 690
+
+
+def _runs_by_policy(folder: Path) -> tuple[dict, dict]:
+    """``learned_policies.csv`` of ``folder``: policy -> density -> the runs' vehicles out, and
+    the same for their average travel velocities [m/s]."""
+    import csv
+    from collections import defaultdict
+
+    out: dict = defaultdict(lambda: defaultdict(list))
+    velocity: dict = defaultdict(lambda: defaultdict(list))
+    with open(folder / "learned_policies.csv", newline="", encoding="utf-8") as fh:
+        for r in csv.DictReader(fh):
+            out[r["policy"]][int(r["density"])].append(float(r["throughput"]))
+            velocity[r["policy"]][int(r["density"])].append(float(r["avg_travel_velocity_mps"]))
+    return out, velocity
